@@ -1,0 +1,12 @@
+"""The exact hemispherical projection (Stürzlinger, "Exact Projections onto the Hemisphere").
+
+Pure numpy: importing this package needs nothing but numpy (no bpy, no mathutils).
+
+    from hemisphere_local_pass.core import Scene, form_factors, irradiance, radiance, project_point
+"""
+
+from .local_pass import Cancelled, form_factors, irradiance, radiance
+from .projection import Projection, project_point
+from .scene import Scene
+
+__all__ = ["Cancelled", "Projection", "Scene", "form_factors", "irradiance", "project_point", "radiance"]

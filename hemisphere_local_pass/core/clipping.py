@@ -1,0 +1,155 @@
+"""Batched clipping of convex polygons by planes (Sutherland–Hodgman), both sides at once.
+
+All geometry is in receiver-local coordinates (the receiver point P at the origin). Every clip of the
+exact projection is a clip by a plane: the tangent plane of P (the horizon), the plane through P and an
+edge of an occluder (a great circle on the sphere, sec. 2.3 of the paper: "all tests and intersection
+calculations are done in three dimensional space"), or the plane of an occluder (depth, sec. 2.4).
+Clipping the 3D polygon instead of its projection keeps fragments planar and in their source polygon's
+plane, so depth and radiance stay defined on them.
+
+First-order ("dual") coordinates
+--------------------------------
+For the one-sided limit at ``P + εu`` (ε → 0+) every vertex is ``x = x_re + ε x_inf``. Signs of plane
+distances come from the real part, and from the ε part where the real part vanishes (a vertex at P
+itself); intersection parameters are carried to first order. Callers that do not need limits pass
+``inf=None`` and pay nothing for it.
+
+Polygons are padded arrays: ``verts (F, K, 3)`` with ``counts (F,)``; slots past the count repeat the last
+vertex, so every edge ``j -> j+1`` past the count has zero length and the closing edge is ``K-1 -> 0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .tolerances import PLANE_EPS
+
+__all__ = ["classify", "pad_repeat_last", "split_convex"]
+
+
+def classify(s_re: np.ndarray, eps: np.ndarray, s_inf: np.ndarray | None = None) -> np.ndarray:
+    """Side of each vertex: +1, -1, or 0 (on the plane within ``eps``).
+
+    Args:
+        s_re: (F, K) signed distances (real part).
+        eps: (F,) absolute on-plane tolerance per polygon.
+        s_inf: (F, K) first-order part of the distances, or None. Decides the side where the real part
+            is within tolerance (a vertex at the receiver in a one-sided limit).
+    Returns:
+        (F, K) int8.
+    """
+    side = np.where(s_re > eps[:, None], 1, np.where(s_re < -eps[:, None], -1, 0)).astype(np.int8)
+    if s_inf is not None:
+        on = side == 0
+        if on.any():
+            side[on] = np.where(s_inf[on] > PLANE_EPS, 1, np.where(s_inf[on] < -PLANE_EPS, -1, 0))
+    return side
+
+
+def pad_repeat_last(verts: np.ndarray, counts: np.ndarray, width: int) -> np.ndarray:
+    """Re-pad ``verts (F, K, 3)`` to ``(F, width, 3)`` repeating the last real vertex (counts >= 1)."""
+    idx = np.minimum(np.arange(width)[None, :], np.maximum(counts, 1)[:, None] - 1)
+    return np.take_along_axis(verts, idx[:, :, None], axis=1)
+
+
+def _compact(cand: np.ndarray, keep: np.ndarray, width: int):
+    """Pack the kept slots of ``cand (F, S, 3)`` left, padded to ``width`` by repeating the last."""
+    counts = keep.sum(axis=1)
+    out = np.zeros((cand.shape[0], width, 3))
+    rows, cols = np.nonzero(keep)
+    pos = (np.cumsum(keep, axis=1) - 1)[rows, cols]
+    out[rows, pos] = cand[rows, cols]
+    return pad_repeat_last(out, counts, width), counts
+
+
+def split_convex(
+    verts: np.ndarray,
+    counts: np.ndarray,
+    s_re: np.ndarray,
+    eps: np.ndarray,
+    *,
+    inf: np.ndarray | None = None,
+    s_inf: np.ndarray | None = None,
+):
+    """Split convex polygons by a plane given through the signed distances of their vertices.
+
+    The *inside* is ``s > 0``; vertices on the plane go to both sides. A side is empty unless some
+    vertex lies strictly in it, except that a polygon lying wholly on the plane goes to the outside.
+
+    Args:
+        verts: (F, K, 3) padded polygons; counts: (F,) vertex counts (0 = empty polygon).
+        s_re: (F, K) signed distance of every vertex slot; eps: (F,) on-plane tolerance.
+        inf, s_inf: (F, K, 3) and (F, K) first-order parts (see module docstring), or None.
+    Returns:
+        ``(inside, outside)``, each a tuple ``(verts (F, K+1, 3), counts (F,), inf or None)``;
+        a side's count is 0 where it is empty.
+    """
+    f, k, _ = verts.shape
+    dual = inf is not None
+    side = classify(s_re, eps, s_inf if dual else None)
+    valid = np.arange(k)[None, :] < counts[:, None]
+    side = np.where(valid, side, 0)
+    nxt = np.where(np.arange(k)[None, :] + 1 < counts[:, None], np.arange(k)[None, :] + 1, 0)  # (F, K)
+    side_n = np.take_along_axis(side, nxt, axis=1)
+    crossing = valid & (side * side_n < 0)
+
+    any_in = (side > 0).any(axis=1)
+    any_out = (side < 0).any(axis=1)
+    in_ok = any_in
+    out_ok = any_out | ~any_in
+
+    # Intersection points on crossing edges. Real parts within tolerance count as zero so that a
+    # vertex classified "on the plane" by its first-order part interpolates consistently.
+    width = k + 1
+    cand_v = np.zeros((f, 2 * k, 3))
+    cand_v[:, 0::2] = verts
+    cand_inf = None
+    if dual:
+        cand_inf = np.zeros((f, 2 * k, 3))
+        cand_inf[:, 0::2] = inf
+    if crossing.any():
+        r, j = np.nonzero(crossing)
+        jn = nxt[r, j]
+        a0 = s_re[r, j]
+        b0 = s_re[r, jn]
+        e = eps[r]
+        a0 = np.where(np.abs(a0) > e, a0, 0.0)
+        b0 = np.where(np.abs(b0) > e, b0, 0.0)
+        xa, xb = verts[r, j], verts[r, jn]
+        if dual:
+            a1, b1 = s_inf[r, j], s_inf[r, jn]
+            both0 = (a0 == 0.0) & (b0 == 0.0)
+            den0 = np.where(both0, 1.0, a0 - b0)
+            den1 = np.where(both0, a1 - b1, 1.0)
+            t0 = np.where(both0, a1 / den1, a0 / den0)
+            t1 = np.where(both0, 0.0, (a0 * b1 - a1 * b0) / (den0 * den0))
+            ia, ib = inf[r, j], inf[r, jn]
+            cand_inf[r, 2 * j + 1] = ia + t0[:, None] * (ib - ia) + t1[:, None] * (xb - xa)
+        else:
+            t0 = a0 / (a0 - b0)
+        # interpolate from the endpoint nearer the plane: the new vertex then stays within one
+        # rounding of the plane whichever way the edge is walked (neighbours share the point)
+        near_a = np.abs(a0) <= np.abs(b0)
+        cand_v[r, 2 * j + 1] = np.where(near_a[:, None], xa + t0[:, None] * (xb - xa),
+                                        xb + (1.0 - t0)[:, None] * (xa - xb))
+
+    keep_cross = np.zeros((f, 2 * k), dtype=bool)
+    keep_cross[:, 1::2] = crossing
+    results = []
+    for ok, keep_side in ((in_ok, side >= 0), (out_ok, side <= 0)):
+        keep = keep_cross.copy()
+        keep[:, 0::2] = valid & keep_side
+        keep &= ok[:, None]
+        out_v, out_c = _compact(cand_v, keep, width)
+        out_inf = _compact(cand_inf, keep, width)[0] if dual else None
+        results.append((out_v, out_c, out_inf))
+    # a polygon that lies wholly on one side is passed through unchanged (no rounding at all)
+    whole_in = in_ok & ~any_out
+    whole_out = ~any_in
+    for res, whole in ((results[0], whole_in), (results[1], whole_out)):
+        if whole.any():
+            res[0][whole] = pad_repeat_last(verts[whole], counts[whole], width)
+            res[1][whole] = counts[whole]
+            if dual:
+                res[2][whole] = pad_repeat_last(inf[whole], counts[whole], width)
+    return results[0], results[1]

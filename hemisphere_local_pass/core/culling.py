@@ -1,0 +1,210 @@
+"""Skipping work a scene does not need: merged occluders and the pair tests of sec. 3.4.
+
+Occluders
+---------
+What hides a polygon A from P is the union of the *shadow volumes* of the other polygons: the part of
+space beyond B's plane (seen from P) inside the cone from P over B. Coplanar polygons that tile a convex
+region C have exactly the shadow volume of C (the union of their cones is C's cone), so for occlusion
+the scene's subdivided walls and block faces are replaced by their merged convex faces. This is exact,
+and it removes the needless splitting of fragments along the subdivision lines: a wall of 1,000 quads
+occludes like one quad. Groups that do not merge into one convex polygon (holes, L-shapes, T-junctions,
+overlaps) keep their polygons as individual occluders, which is exact too, only slower.
+
+Pair tests
+----------
+Occlusion work is done only for (polygon, occluder) pairs where (a) some vertex of the polygon lies
+strictly beyond the occluder's plane on the side away from P (precomputed per scene for both sides
+— independent of P), and (b) the bounding cones of the two, seen from P, overlap. Everything else (the
+clips) only runs for pairs that pass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import Scene
+from .tolerances import CONVEXITY_EPS, PLANE_EPS
+
+__all__ = ["Occluders", "build_occluders"]
+
+
+@dataclass
+class Occluders:
+    """Convex occluders of a scene.
+
+    Attributes:
+        vertices: (n_o, K_o, 3) padded convex polygons (world space).
+        counts: (n_o,) vertex counts.
+        normals: (n_o, 3) unit plane normals.
+        centers, radii: (n_o, 3), (n_o,) bounding spheres.
+        members: (n,) occluder index of every convex polygon of the scene.
+        beyond_pos, beyond_neg: (n, n_o) bool — polygon i has a vertex strictly on the positive /
+            negative side of occluder o's plane. A polygon can only be hidden by o from a point on the
+            other side.
+    """
+
+    vertices: np.ndarray
+    counts: np.ndarray
+    normals: np.ndarray
+    centers: np.ndarray
+    radii: np.ndarray
+    members: np.ndarray
+    beyond_pos: np.ndarray
+    beyond_neg: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.counts)
+
+
+def _merge_group(scene: Scene, group: np.ndarray):
+    """Boundary loop (k, 3) of a coplanar, edge-connected group if it is one convex polygon, else None."""
+    verts, counts = scene.poly_vertices, scene.poly_counts
+    edges: dict[tuple[bytes, bytes], int] = {}
+    coords: dict[bytes, np.ndarray] = {}
+    area = 0.0
+    for i in group:
+        k = counts[i]
+        pv = verts[i, :k]
+        keys = [v.tobytes() for v in pv]
+        for j in range(k):
+            coords[keys[j]] = pv[j]
+            e = (keys[j], keys[(j + 1) % k])
+            edges[e] = edges.get(e, 0) + 1
+        rel = pv - pv[0]
+        area += 0.5 * np.linalg.norm(np.cross(rel, np.roll(rel, -1, axis=0)).sum(axis=0))
+    boundary = {}
+    for (a, b), c in edges.items():
+        if c != 1 or edges.get((b, a), 0) > 1:
+            return None  # duplicated edges: overlapping polygons
+        if (b, a) not in edges:
+            if a in boundary:
+                return None  # a vertex with two outgoing boundary edges: not a simple loop
+            boundary[a] = b
+    if not boundary:
+        return None
+    start = next(iter(boundary))
+    loop = [start]
+    while True:
+        nxt = boundary[loop[-1]]
+        if nxt == start:
+            break
+        if len(loop) > len(boundary):
+            return None
+        loop.append(nxt)
+    if len(loop) != len(boundary):
+        return None  # several loops (holes or disjoint parts)
+    pts = np.array([coords[key] for key in loop])
+    normal = scene.poly_normals[group[0]]
+    # drop collinear boundary vertices (the subdivision's T-free grid points along the border)
+    keep = []
+    n_pts = len(pts)
+    size = float(np.ptp(pts, axis=0).max())
+    for j in range(n_pts):
+        e1 = pts[j] - pts[j - 1]
+        e2 = pts[(j + 1) % n_pts] - pts[j]
+        turn = float(np.dot(np.cross(e1, e2), normal))
+        if turn < -CONVEXITY_EPS * np.linalg.norm(e1) * np.linalg.norm(e2):
+            return None  # reflex corner: not convex
+        if turn > 1e-9 * np.linalg.norm(e1) * np.linalg.norm(e2):
+            keep.append(j)
+    if len(keep) < 3:
+        return None
+    pts = pts[keep]
+    rel = pts - pts[0]
+    loop_area = 0.5 * float(np.dot(np.cross(rel, np.roll(rel, -1, axis=0)).sum(axis=0), normal))
+    if abs(loop_area - area) > 1e-9 * max(area, size * size * 1e-12):
+        return None  # winding or overlap inconsistency
+    return pts
+
+
+def build_occluders(scene: Scene) -> Occluders:
+    """Merge coplanar edge-connected convex polygons into convex occluders (exact; see module doc)."""
+    n = scene.n_polygons
+    members = np.arange(n)
+    loops: list[np.ndarray] = []
+    if n:
+        # group by plane: quantised normal and offset (relative to the scene size)
+        size = float(np.ptp(scene.poly_centers, axis=0).max() + scene.poly_radii.max()) or 1.0
+        key = np.concatenate([np.round(scene.poly_normals * 1e9), np.round(scene.poly_offsets / size * 1e9)[:, None]],
+                             axis=1)
+        _, plane_id = np.unique(key, axis=0, return_inverse=True)
+        plane_id = plane_id.reshape(-1)
+        order = np.argsort(plane_id, kind="stable")
+        bounds = np.flatnonzero(np.diff(plane_id[order])) + 1
+        members = np.full(n, -1)
+        for grp in np.split(order, bounds):
+            merged = None
+            if len(grp) > 1:
+                comps = _components(scene, grp)
+                for comp in comps:
+                    merged = _merge_group(scene, comp) if len(comp) > 1 else None
+                    if merged is None:
+                        for i in comp:
+                            members[i] = len(loops)
+                            loops.append(scene.poly_vertices[i, : scene.poly_counts[i]])
+                    else:
+                        members[comp] = len(loops)
+                        loops.append(merged)
+            else:
+                members[grp[0]] = len(loops)
+                loops.append(scene.poly_vertices[grp[0], : scene.poly_counts[grp[0]]])
+    kmax = max((len(p) for p in loops), default=3)
+    counts = np.array([len(p) for p in loops], dtype=np.int64)
+    verts = np.zeros((len(loops), kmax, 3))
+    for o, p in enumerate(loops):
+        verts[o, : len(p)] = p
+        verts[o, len(p):] = p[-1]
+    rel = verts - verts[:, :1]
+    area_vec = 0.5 * np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1)
+    normals = area_vec / np.linalg.norm(area_vec, axis=1, keepdims=True) if len(loops) else np.zeros((0, 3))
+    valid = np.arange(kmax)[None, :] < counts[:, None]
+    centers = (verts * valid[..., None]).sum(axis=1) / np.maximum(counts, 1)[:, None]
+    radii = np.where(valid, np.linalg.norm(verts - centers[:, None], axis=2), 0.0).max(axis=1) if len(loops) \
+        else np.zeros(0)
+
+    # beyond tests, independent of the receiver: signed distances of every polygon vertex to every
+    # occluder plane, relative to a vertex of the occluder (differences keep far-away scenes exact)
+    beyond_pos = np.zeros((n, len(loops)), dtype=bool)
+    beyond_neg = np.zeros((n, len(loops)), dtype=bool)
+    kv = scene.poly_vertices.shape[1] if n else 0
+    pvalid = np.arange(kv)[None, :] < scene.poly_counts[:, None] if n else np.zeros((0, 0), bool)
+    step = max(1, int(2e6 // max(1, len(loops) * kv)))
+    for s in range(0, n, step):
+        rel_v = scene.poly_vertices[s:s + step, :, None, :] - verts[None, None, :, 0, :]   # (b, K, n_o, 3)
+        d = np.einsum("bkoc,oc->bko", rel_v, normals)
+        eps = 4 * PLANE_EPS * np.abs(rel_v).max(axis=(1, 3))                               # (b, n_o)
+        d = np.where(pvalid[s:s + step, :, None], d, 0.0)
+        beyond_pos[s:s + step] = (d > eps[:, None, :]).any(axis=1)
+        beyond_neg[s:s + step] = (d < -eps[:, None, :]).any(axis=1)
+    return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg)
+
+
+def _components(scene: Scene, group: np.ndarray) -> list[np.ndarray]:
+    """Edge-connected components (shared edges with identical end points) of a coplanar group."""
+    parent = {int(i): int(i) for i in group}
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    owner: dict[tuple[bytes, bytes], int] = {}
+    for i in group:
+        k = scene.poly_counts[i]
+        keys = [v.tobytes() for v in scene.poly_vertices[i, :k]]
+        for j in range(k):
+            a, b = keys[j], keys[(j + 1) % k]
+            other = owner.get((b, a))
+            if other is not None:
+                ra, rb = find(int(i)), find(other)
+                if ra != rb:
+                    parent[ra] = rb
+            owner[(a, b)] = int(i)
+    comps: dict[int, list[int]] = {}
+    for i in group:
+        comps.setdefault(find(int(i)), []).append(int(i))
+    return [np.array(c) for c in comps.values()]

@@ -1,0 +1,207 @@
+"""Batch entry points of the core: form factors (eq. 4), irradiance (eq. 3) and radiance (eq. 5).
+
+Receivers are processed in chunks of points; within a chunk everything is vectorised across points,
+polygons and fragments. Memory per chunk is bounded by ``budget`` array elements for the dense
+(points × polygons × vertex slots) stage — about ``budget × 3 × 8`` bytes per coordinate array, so the
+default of 2**21 keeps each such array near 50 MB whatever the scene size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .culling import Occluders, build_occluders
+from .form_factor import contour_integral
+from .projection import hemisphere_candidates
+from .scene import Scene
+from .visibility import Fragments, occluder_pairs, shadow_volumes, subtract_shadow_volumes
+
+__all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_with_ff"]
+
+DEFAULT_BUDGET = 2**21
+
+
+class Cancelled(Exception):
+    """Raised when the ``cancel`` callback of a batch entry point returns True."""
+
+
+def _prepare_receivers(points, normals, limit_directions=None, *, single=False):
+    """Validate receivers; return ``P (m, 3)``, unit ``N (m, 3)`` and tangent ``U (m, 3)`` or None."""
+    p = np.asarray(points, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    if single:
+        p, n = p.reshape(1, -1), n.reshape(1, -1)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"points must have shape (m, 3), got {p.shape}")
+    if n.shape != p.shape:
+        raise ValueError(f"normals must have shape {p.shape}, got {n.shape}")
+    bad = np.flatnonzero(~(np.isfinite(p).all(axis=1) & np.isfinite(n).all(axis=1)))
+    if len(bad):
+        raise ValueError(f"receiver {int(bad[0])} has a non-finite point or normal ({p[bad[0]]}, {n[bad[0]]})")
+    length = np.linalg.norm(n, axis=1)
+    bad = np.flatnonzero(~(length > 0))
+    if len(bad):
+        raise ValueError(f"receiver {int(bad[0])} has a zero normal")
+    n = n / length[:, None]
+    u = None
+    if limit_directions is not None:
+        u = np.asarray(limit_directions, dtype=np.float64)
+        if single:
+            u = u.reshape(1, -1)
+        if u.shape != p.shape:
+            raise ValueError(f"limit_directions must have shape {p.shape}, got {u.shape}")
+        if not np.isfinite(u).all():
+            raise ValueError("limit_directions must be finite")
+        u = u - np.einsum("mc,mc->m", u, n)[:, None] * n       # keep it in the tangent plane
+        ul = np.linalg.norm(u, axis=1)
+        u = np.where((ul > 1e-12)[:, None], u / np.where(ul > 0, ul, 1.0)[:, None], 0.0)
+        if not u.any():
+            u = None
+    return p, n, u
+
+
+def _occluders(scene: Scene, occluders: Occluders | None) -> Occluders:
+    if occluders is not None:
+        return occluders
+    occ = getattr(scene, "_occluders", None)
+    if occ is None:
+        occ = build_occluders(scene)
+        scene._occluders = occ
+    return occ
+
+
+def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occluders=None, include=None):
+    """Visible fragments of every polygon for receivers ``points, normals (m, 3)`` and their form factors.
+
+    Returns ``(fragments, ff)`` with ``ff (F,)`` the form factor of each fragment (eq. 4, >= 0).
+    """
+    occ = _occluders(scene, occluders)
+    cand, _ = hemisphere_candidates(scene, points, normals, limit, include)
+    sv, table = shadow_volumes(occ, points, normals, limit)
+    ptr, ids, hidden = occluder_pairs(cand, sv, table, occ, scene, points)
+    vis = np.flatnonzero(~hidden)
+    frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
+                      cand.point[vis], cand.poly[vis], cand.side[vis])
+    frags, _ = subtract_shadow_volumes(frags, vis, ptr, ids, sv)
+    ff = frags.side * contour_integral(frags.verts, normals[frags.point], frags.inf)
+    # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
+    return frags, np.maximum(ff, 0.0)
+
+
+def _chunks(scene: Scene, m: int, budget: int):
+    k = scene.poly_vertices.shape[1] if scene.n_polygons else 3
+    per_point = max(1, (scene.n_polygons + 1) * k)
+    size = max(1, min(m, budget // per_point))
+    return [(s, min(m, s + size)) for s in range(0, m, size)]
+
+
+def _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk):
+    p, n, u = _prepare_receivers(points, normals, limit_directions)
+    m = len(p)
+    chunks = _chunks(scene, m, budget)
+    for s, e in chunks:
+        if cancel is not None and cancel():
+            raise Cancelled(f"cancelled after {s} of {m} points")
+        per_chunk(s, e, p[s:e], n[s:e], None if u is None else u[s:e])
+        if progress is not None:
+            progress(e, m)
+
+
+def form_factors(
+    scene: Scene,
+    points,
+    normals,
+    *,
+    limit_directions=None,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    occluders: Occluders | None = None,
+    budget: int = DEFAULT_BUDGET,
+) -> np.ndarray:
+    """Visible form factor of every input polygon from every receiver (eq. 2/4 with exact visibility).
+
+    Args:
+        scene: the scene.
+        points: (m, 3) receiver positions (world space); normals: (m, 3) receiver normals (normalised here).
+        limit_directions: (m, 3) tangent directions u or None. Where non-zero, the one-sided limit at
+            ``P + εu`` (ε → 0+) is returned instead of the value at P itself: at the foot of a wall or in
+            a room corner the exact value at P sees the walls edge-on (ΣF = 0.5 or 0.25 in a closed
+            box); the limit from inside the face sees them as any point of the face does.
+        progress: called as ``progress(done, total)`` after each chunk.
+        cancel: called before each chunk; returning True raises :class:`Cancelled`.
+    Returns:
+        (m, n_input) float64. Polygons are opaque from both sides; the factor is geometric (it does not
+        depend on which side emits). In a closed scene every row sums to 1.
+    """
+    out = np.zeros((len(np.asarray(points).reshape(-1, 3)), scene.n_input))
+
+    def per_chunk(s, e, p, n, u):
+        frags, ff = visible_fragments_with_ff(scene, p, n, u, occluders=occluders)
+        key = frags.point * scene.n_input + scene.poly_source[frags.poly]
+        out[s:e] = np.bincount(key, weights=ff, minlength=(e - s) * scene.n_input).reshape(e - s, scene.n_input)
+
+    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
+    return out
+
+
+def _emitter_mask(scene: Scene) -> np.ndarray:
+    """(n,) polygons with any non-zero radiance (the only ones whose fragments irradiance needs)."""
+    if scene.linear:
+        return (scene.corner_radiance != 0).any(axis=(1, 2))
+    return (scene.poly_radiance != 0).any(axis=1)
+
+
+def irradiance(
+    scene: Scene,
+    points,
+    normals,
+    *,
+    limit_directions=None,
+    progress: Callable[[int, int], None] | None = None,
+    cancel: Callable[[], bool] | None = None,
+    occluders: Occluders | None = None,
+    budget: int = DEFAULT_BUDGET,
+) -> np.ndarray:
+    """Irradiance ``H = Σ_i L_i F_i`` (eq. 3) at every receiver, ``(m, 3)`` float64 (W m^-2 per channel).
+
+    Polygons emit from their front side only unless the scene is ``double_sided``; polygons with zero
+    radiance are only occluders. With per-corner radiance, radiance varies linearly over each triangle and
+    is integrated over the visible fragments (see :mod:`.linear_radiance`). Arguments as for
+    :func:`form_factors`.
+    """
+    m = len(np.asarray(points).reshape(-1, 3))
+    out = np.zeros((m, 3))
+    emits = _emitter_mask(scene)
+
+    def per_chunk(s, e, p, n, u):
+        include = np.broadcast_to(emits[None, :], (e - s, scene.n_polygons))
+        frags, ff = visible_fragments_with_ff(scene, p, n, u, occluders=occluders, include=include)
+        lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
+        if scene.linear:
+            from .linear_radiance import linear_irradiance
+
+            tri = scene.poly_vertices[frags.poly, :3] - p[frags.point][:, None, :]
+            contrib = linear_irradiance(frags.verts, frags.counts, n[frags.point], scene.poly_normals[frags.poly],
+                                        tri, scene.corner_radiance[frags.poly], form_factor=ff)
+        else:
+            contrib = ff[:, None] * scene.poly_radiance[frags.poly]
+        contrib = np.where(lit[:, None], contrib, 0.0)
+        for c in range(3):
+            out[s:e, c] = np.bincount(frags.point, weights=contrib[:, c], minlength=e - s)
+
+    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
+    return out
+
+
+def radiance(scene: Scene, points, normals, reflectivity, emission=0.0, **kwargs) -> np.ndarray:
+    """Outgoing radiance ``L = E + ρ/π H`` (eq. 5) of diffuse receivers, ``(m, 3)`` float64.
+
+    ``reflectivity`` ρ and ``emission`` E broadcast to ``(m, 3)`` (scalars, RGB triples or per point).
+    Other keyword arguments go to :func:`irradiance`.
+    """
+    h = irradiance(scene, points, normals, **kwargs)
+    rho = np.broadcast_to(np.asarray(reflectivity, dtype=np.float64), h.shape)
+    e = np.broadcast_to(np.asarray(emission, dtype=np.float64), h.shape)
+    return e + rho / np.pi * h

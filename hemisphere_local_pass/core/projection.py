@@ -1,0 +1,165 @@
+"""Projection of polygons onto the hemisphere over each receiver point (paper sec. 2.2).
+
+For receiver points ``P`` with normals ``N``, every polygon is moved into P-local coordinates (``v - P``;
+far-away scenes lose nothing), back- and front-facing polygons are both kept (they are opaque from
+both sides), polygons entirely below the tangent plane are culled, and the rest are clipped by the
+tangent plane ``N · x = 0`` — a plane through P, so the clip is exact in 3D, and "all projected
+vertices lie on half of the unit sphere" (sec. 2.2). The central projection itself is only ever needed
+as directions: normalising a fragment's vertices gives its spherical polygon, whose edges are great
+circles, which is what :class:`Projection` hands to the inspector.
+
+A polygon whose plane contains P is seen edge-on: it contributes nothing and hides nothing. In a
+one-sided limit (``limit_direction u``: the value at ``P + εu``, ε → 0+) such a polygon is on the side
+of its plane given by ``u`` instead; see :mod:`.clipping` for the first-order coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .clipping import split_convex
+from .scene import Scene
+from .tolerances import PLANE_EPS
+
+__all__ = ["Candidates", "Projection", "hemisphere_candidates", "project_point", "receiver_side"]
+
+
+def receiver_side(normals, first_vertex_rel, scale, limit):
+    """Side of each plane the receiver is on, ``(m, n)`` int8: +1 behind (plane normal points away
+    from P), -1 in front, 0 in the plane (edge-on).
+
+    Args:
+        normals: (n, 3) plane normals; first_vertex_rel: (m, n, 3) a plane vertex minus P;
+        scale: (m, n) length scale for the tolerance; limit: (m, 3) limit directions or None.
+    """
+    d = np.einsum("mnc,nc->mn", first_vertex_rel, normals)          # n . (v0 - P)
+    side = np.where(d > PLANE_EPS * scale, 1, np.where(d < -PLANE_EPS * scale, -1, 0)).astype(np.int8)
+    if limit is not None:
+        on = side == 0
+        if on.any():
+            # at P + εu the plane distance is n.(v0 - P) - ε n.u
+            d_inf = -(limit @ normals.T)                                 # (m, n)
+            side = np.where(on, np.where(d_inf > PLANE_EPS, 1, np.where(d_inf < -PLANE_EPS, -1, 0)), side)
+            side = side.astype(np.int8)
+    return side
+
+
+@dataclass
+class Candidates:
+    """Polygons above the horizon of each receiver, clipped to it (P-local, flat over pairs).
+
+    Attributes:
+        point: (C,) receiver index; poly: (C,) convex polygon index; side: (C,) receiver side of the
+        polygon's plane (+1 behind, -1 in front); verts: (C, K, 3) clipped P-local vertices;
+        inf: (C, K, 3) first-order parts or None; counts: (C,).
+    """
+
+    point: np.ndarray
+    poly: np.ndarray
+    side: np.ndarray
+    verts: np.ndarray
+    inf: np.ndarray | None
+    counts: np.ndarray
+
+
+def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=None) -> tuple[Candidates, np.ndarray]:
+    """Cull and clip every polygon to the upper hemisphere of every receiver.
+
+    Args:
+        points, normals: (m, 3) receivers; limit: (m, 3) limit directions (zero rows: none) or None.
+        include: optional (m, n) bool of pairs to consider at all (e.g. emitters only).
+    Returns:
+        the candidates and the ``(m, n)`` receiver-side array (0 = edge-on, skipped).
+    """
+    m, n = len(points), scene.n_polygons
+    rel_c = scene.poly_centers[None, :, :] - points[:, None, :]               # (m, n, 3)
+    dist_c = np.linalg.norm(rel_c, axis=2)
+    scale = dist_c + scene.poly_radii[None, :]
+    rel0 = scene.poly_vertices[None, :, 0, :] - points[:, None, :]
+    side = receiver_side(scene.poly_normals, rel0, scale, limit)
+    # horizon culling by bounding sphere (conservative), then exactly on the vertices
+    height_c = np.einsum("mnc,mc->mn", rel_c, normals)
+    mask = (side != 0) & (height_c + scene.poly_radii[None, :] > PLANE_EPS * scale)
+    if include is not None:
+        mask &= include
+    cp, ci = np.nonzero(mask)
+    verts = scene.poly_vertices[ci] - points[cp, None, :]                       # (C, K, 3)
+    counts = scene.poly_counts[ci]
+    height = np.einsum("ckx,cx->ck", verts, normals[cp])                        # (C, K) above the horizon
+    eps = PLANE_EPS * np.abs(verts).max(axis=(1, 2))
+    valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
+    above = ((height > eps[:, None]) & valid).any(axis=1)
+    cp, ci, verts, counts, height, eps, valid = cp[above], ci[above], verts[above], counts[above], height[above], \
+        eps[above], valid[above]
+    inf = None
+    if limit is not None:
+        inf = np.broadcast_to(-limit[cp, None, :], verts.shape).copy()
+    straddle = ((height < -eps[:, None]) & valid).any(axis=1)
+    width = verts.shape[1] + (1 if straddle.any() else 0)
+    if width > verts.shape[1]:
+        pad = np.repeat(verts[:, -1:], 1, axis=1)
+        verts = np.concatenate([verts, pad], axis=1)
+        if inf is not None:
+            inf = np.concatenate([inf, inf[:, -1:]], axis=1)
+    if straddle.any():
+        s = np.flatnonzero(straddle)
+        k = width - 1
+        (iv, ic, iinf), _ = split_convex(
+            verts[s, :k], counts[s], height[s], eps[s],
+            inf=None if inf is None else inf[s, :k],
+            s_inf=None if inf is None else np.zeros_like(height[s]),  # N . u = 0: u is tangent
+        )
+        verts[s], counts[s] = iv, ic
+        if inf is not None:
+            inf[s] = iinf
+    cand = Candidates(cp, ci, side[cp, ci], verts, inf, counts)
+    return cand, side
+
+
+@dataclass
+class Projection:
+    """The exact hemispherical projection seen from one receiver point (for the inspector).
+
+    Attributes:
+        point, normal: (3,) the receiver.
+        fragments: list of (k_i, 3) unit vectors: the visible spherical polygons, counter-clockwise seen
+            from P; edges are great-circle arcs between consecutive vertices.
+        polygon: (F,) input polygon of each fragment.
+        form_factor: (F,) form factor of each fragment (eq. 4).
+        distance: list of (k_i,) distances from P to the fragment's vertices (paper's dist(v)).
+        polygon_form_factors: (n_input,) visible form factor of every input polygon.
+    """
+
+    point: np.ndarray
+    normal: np.ndarray
+    fragments: list
+    polygon: np.ndarray
+    form_factor: np.ndarray
+    distance: list
+    polygon_form_factors: np.ndarray
+
+
+def project_point(scene: Scene, point, normal, *, limit_direction=None, occluders=None) -> Projection:
+    """Visible fragments of every polygon seen from one receiver point, with their form factors."""
+    from .local_pass import _prepare_receivers, visible_fragments_with_ff
+
+    pts, nrm, lim = _prepare_receivers(point, normal, limit_direction, single=True)
+    frags, ff = visible_fragments_with_ff(scene, pts, nrm, lim, occluders=occluders)
+    fragments, dists = [], []
+    for f in range(len(frags.counts)):
+        k = frags.counts[f]
+        v = frags.verts[f, :k]
+        d = np.linalg.norm(v, axis=1)
+        dirs = v / np.where(d > 0, d, 1.0)[:, None]
+        if frags.inf is not None and (d == 0).any():
+            iv = frags.inf[f, :k]
+            dirs = np.where((d == 0)[:, None], iv / np.linalg.norm(iv, axis=1, keepdims=True), dirs)
+        if frags.side[f] > 0:  # receiver behind: the vertices run clockwise seen from P; reverse
+            dirs, d = dirs[::-1], d[::-1]
+        fragments.append(dirs)
+        dists.append(d)
+    source = scene.poly_source[frags.poly]
+    per_poly = np.bincount(source, weights=ff, minlength=scene.n_input) if len(ff) else np.zeros(scene.n_input)
+    return Projection(pts[0], nrm[0], fragments, source, ff, dists, per_poly)

@@ -1,0 +1,26 @@
+"""Every tolerance of the numeric core, in one place.
+
+All tolerances are *relative*: a distance is compared with the length scale of the
+configuration it belongs to (the distance of the vertices from the receiver point, or the size
+of a polygon), so results do not depend on the scene's units or on its distance from the origin.
+"""
+
+#: A point whose distance from a plane is at most ``PLANE_EPS`` times the local length scale lies
+#: *on* the plane. Used to classify vertices against clip planes, and to decide that a receiver
+#: point lies in the plane of a polygon (which then contributes nothing and hides nothing).
+PLANE_EPS = 1e-12
+
+#: Polygons whose area is below ``AREA_EPS`` times the square of their longest edge (slivers,
+#: collinear or repeated vertices) are degenerate: dropped from the scene and counted.
+AREA_EPS = 1e-12
+
+#: A polygon whose vertices deviate from their best-fit (Newell) plane by more than
+#: ``PLANARITY_EPS`` times its size is non-planar and is triangulated.
+PLANARITY_EPS = 1e-9
+
+#: Consecutive vertices closer than ``DUPLICATE_EPS`` times the polygon size are merged.
+DUPLICATE_EPS = 1e-12
+
+#: A polygon is convex when every turn of its boundary is left of the normal by at least
+#: ``-CONVEXITY_EPS`` times the product of the two edge lengths.
+CONVEXITY_EPS = 1e-12
