@@ -5,8 +5,22 @@
 
 HLP_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 HLP_VENVS="$HLP_ROOT/.venv"
-PY311="${HLP_PY311:-$(command -v python3.11 || echo "$HOME/.pyenv/versions/3.11.7/bin/python3.11")}"
-PY313="${HLP_PY313:-$(command -v python3.13 || echo "$HOME/.pyenv/versions/3.13.0/bin/python3.13")}"
+# A pyenv shim named python3.13 may exist without 3.13 being selected: use a Python that runs.
+_hlp_working_python() {
+    local candidate
+    for candidate in "$@"; do
+        if [ -n "$candidate" ] && "$candidate" -c "import sys" >/dev/null 2>&1; then
+            echo "$candidate"
+            return 0
+        fi
+    done
+    echo "no working Python among: $*" >&2
+    return 1
+}
+PY311="$(_hlp_working_python "${HLP_PY311:-}" "$HOME"/.pyenv/versions/3.11*/bin/python3.11 \
+    "$(command -v python3.11)" || true)"
+PY313="$(_hlp_working_python "${HLP_PY313:-}" "$HOME"/.pyenv/versions/3.13*/bin/python3.13 \
+    "$(command -v python3.13)" || true)"
 
 TEST_TOOLS=(pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6)
 
@@ -18,9 +32,10 @@ make_venv() {
     if [ ! -f "$dir/.stamp-$stamp" ]; then
         echo "[setup] creating .venv/$name ($*)" >&2
         rm -rf "$dir"
-        "$python" -m venv "$dir"
-        "$dir/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >&2
-        "$dir/bin/python" -m pip install -q --disable-pip-version-check "$@" >&2
+        [ -n "$python" ] || { echo "make_venv $name: no Python interpreter" >&2; return 1; }
+        "$python" -m venv "$dir" || return 1
+        "$dir/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >&2 || return 1
+        "$dir/bin/python" -m pip install -q --disable-pip-version-check "$@" >&2 || return 1
         touch "$dir/.stamp-$stamp"
     fi
     echo "$dir"

@@ -43,6 +43,12 @@ class Occluders:
         beyond_pos, beyond_neg: (n, n_o) bool — polygon i has a vertex strictly on the positive /
             negative side of occluder o's plane. A polygon can only be hidden by o from a point on the
             other side.
+        occ_beyond_pos, occ_beyond_neg: (n_o, n_o) bool — the same between occluders.
+        front_pos, front_neg: (n, n_o) bool — occluder o has a vertex strictly on the positive / negative
+            side of polygon i's plane. o can only hide part of i from a receiver on a side o reaches to.
+        tile_of: (n,) tile of every polygon; tiles split the members of large merged occluders into
+            spatial groups of about :data:`TILE_SIZE` (sec. 3.4's voxels): tile_corners (T, 8, 3) the
+            corners of each tile's bounding box, tile_centers (T, 3), tile_radii (T,), tile_occluder (T,).
     """
 
     vertices: np.ndarray
@@ -53,6 +59,15 @@ class Occluders:
     members: np.ndarray
     beyond_pos: np.ndarray
     beyond_neg: np.ndarray
+    occ_beyond_pos: np.ndarray
+    occ_beyond_neg: np.ndarray
+    front_pos: np.ndarray
+    front_neg: np.ndarray
+    tile_of: np.ndarray
+    tile_corners: np.ndarray
+    tile_centers: np.ndarray
+    tile_radii: np.ndarray
+    tile_occluder: np.ndarray
 
     @property
     def n(self) -> int:
@@ -165,21 +180,81 @@ def build_occluders(scene: Scene) -> Occluders:
     radii = np.where(valid, np.linalg.norm(verts - centers[:, None], axis=2), 0.0).max(axis=1) if len(loops) \
         else np.zeros(0)
 
-    # beyond tests, independent of the receiver: signed distances of every polygon vertex to every
-    # occluder plane, relative to a vertex of the occluder (differences keep far-away scenes exact)
-    beyond_pos = np.zeros((n, len(loops)), dtype=bool)
-    beyond_neg = np.zeros((n, len(loops)), dtype=bool)
-    kv = scene.poly_vertices.shape[1] if n else 0
-    pvalid = np.arange(kv)[None, :] < scene.poly_counts[:, None] if n else np.zeros((0, 0), bool)
-    step = max(1, int(2e6 // max(1, len(loops) * kv)))
-    for s in range(0, n, step):
-        rel_v = scene.poly_vertices[s:s + step, :, None, :] - verts[None, None, :, 0, :]   # (b, K, n_o, 3)
-        d = np.einsum("bkoc,oc->bko", rel_v, normals)
-        eps = 4 * PLANE_EPS * np.abs(rel_v).max(axis=(1, 3))                               # (b, n_o)
-        d = np.where(pvalid[s:s + step, :, None], d, 0.0)
-        beyond_pos[s:s + step] = (d > eps[:, None, :]).any(axis=1)
-        beyond_neg[s:s + step] = (d < -eps[:, None, :]).any(axis=1)
-    return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg)
+    # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
+    if n:
+        beyond_pos, beyond_neg = _beyond(scene.poly_vertices, scene.poly_counts, verts, normals)
+    else:
+        beyond_pos = beyond_neg = np.zeros((0, len(loops)), dtype=bool)
+    occ_pos, occ_neg = _beyond(verts, counts, verts, normals)
+    # and the converse: does occluder o reach to either side of polygon i's plane (it can only hide a
+    # part of i from a receiver on a side it reaches to)
+    if n:
+        front_pos, front_neg = (t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices, scene.poly_normals))
+    else:
+        front_pos = front_neg = np.zeros((0, len(loops)), dtype=bool)
+    tiles = _tiles(scene, members, len(loops))
+    return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
+                     front_pos, front_neg, *tiles)
+
+
+#: target number of member polygons per tile of a merged occluder
+TILE_SIZE = 16
+
+
+def _tiles(scene: Scene, members: np.ndarray, n_o: int):
+    """Spatial tiles of every occluder's members: a grid over the face's two longest extents."""
+    n = scene.n_polygons
+    tile_of = np.zeros(n, dtype=np.int64)
+    corners, occ_of = [], []
+    order = np.argsort(members, kind="stable")
+    bounds = np.flatnonzero(np.diff(members[order])) + 1
+    for grp in np.split(order, bounds) if n else []:
+        c = scene.poly_centers[grp]
+        cells = max(1, int(round(np.sqrt(len(grp) / TILE_SIZE))))
+        if cells == 1:
+            keys = np.zeros(len(grp), dtype=np.int64)
+        else:
+            ext = np.ptp(c, axis=0)
+            a, b = np.argsort(ext)[::-1][:2]
+            ia = np.minimum((c[:, a] - c[:, a].min()) / max(ext[a], 1e-300) * cells, cells - 1).astype(np.int64)
+            ib = np.minimum((c[:, b] - c[:, b].min()) / max(ext[b], 1e-300) * cells, cells - 1).astype(np.int64)
+            keys = ia * cells + ib
+        uniq, inv = np.unique(keys, return_inverse=True)
+        base = len(occ_of)
+        tile_of[grp] = base + inv.reshape(-1)
+        for t in range(len(uniq)):
+            sel = grp[inv.reshape(-1) == t]
+            pv = scene.poly_vertices[sel].reshape(-1, 3)
+            lo, hi = pv.min(axis=0), pv.max(axis=0)
+            corners.append(np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                     for z in (lo[2], hi[2])]))
+            occ_of.append(members[grp[0]])
+    corners = np.array(corners).reshape(-1, 8, 3)
+    centers = corners.mean(axis=1)
+    radii = np.linalg.norm(corners - centers[:, None], axis=2).max(axis=1) if len(corners) else np.zeros(0)
+    return tile_of, corners, centers, radii, np.array(occ_of, dtype=np.int64)
+
+
+def _beyond(body_verts, body_counts, occ_verts, occ_normals):
+    """(B, n_o) bool pair: body b has a vertex strictly on the positive / negative side of occluder o.
+
+    Signed distances are taken relative to a vertex of the occluder: differences of nearby world
+    coordinates are exact, so scenes far from the origin keep their precision.
+    """
+    b_n, k = body_verts.shape[:2]
+    n_o = len(occ_verts)
+    pos = np.zeros((b_n, n_o), dtype=bool)
+    neg = np.zeros((b_n, n_o), dtype=bool)
+    valid = np.arange(k)[None, :] < body_counts[:, None]
+    step = max(1, int(2e6 // max(1, n_o * k)))
+    for s in range(0, b_n, step):
+        rel = body_verts[s:s + step, :, None, :] - occ_verts[None, None, :, 0, :]     # (b, K, n_o, 3)
+        d = (rel * occ_normals[None, None]).sum(axis=3)                               # (b, K, n_o)
+        eps = 4 * PLANE_EPS * np.abs(rel).max(axis=(1, 3))                            # (b, n_o)
+        d = np.where(valid[s:s + step, :, None], d, 0.0)
+        pos[s:s + step] = (d > eps[:, None, :]).any(axis=1)
+        neg[s:s + step] = (d < -eps[:, None, :]).any(axis=1)
+    return pos, neg
 
 
 def _components(scene: Scene, group: np.ndarray) -> list[np.ndarray]:

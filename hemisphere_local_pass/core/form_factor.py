@@ -46,15 +46,38 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     The polygon must lie in the receiver's closed upper hemisphere (clip it first).
     """
     a = directions(verts, inf)
-    b = np.roll(a, -1, axis=1)
-    c = np.cross(a, b)                                                        # (F, K, 3)
-    s = np.linalg.norm(c, axis=2)                                             # |a×b|
-    d = np.einsum("fkc,fkc->fk", a, b)                                        # a·b
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]                              # (F, K) each
+    # next vertex along the contour; padding slots repeat the last vertex, so the only wrap-around
+    # edge that matters is slot K-1 -> 0
+    bx = np.concatenate([ax[:, 1:], ax[:, :1]], axis=1)
+    by = np.concatenate([ay[:, 1:], ay[:, :1]], axis=1)
+    bz = np.concatenate([az[:, 1:], az[:, :1]], axis=1)
+    cx = ay * bz - az * by                                                    # a × b
+    cy = az * bx - ax * bz
+    cz = ax * by - ay * bx
+    s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
+    d = ax * bx + ay * by + az * bz                                           # a·b
     gamma = np.arctan2(s, d)
-    nz = s > 0.0
-    ratio = np.divide(gamma, s, out=np.zeros_like(s), where=nz)               # γ/|a×b|
+    if inf is not None:
+        # an edge through P in a one-sided limit: its end points are antipodal seen from P (a×b = 0,
+        # γ = π) and its great circle is the limit of the planes through P + εu: use the first-order
+        # part of the cross product, (a + ε a')×(b + ε b') = a×b + ε (a×b' + a'×b)
+        through = (s <= PLANE_EPS * np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz))) & (d < 0)
+        if through.any():
+            ia = inf[through]
+            ib = np.concatenate([inf[:, 1:], inf[:, :1]], axis=1)[through]
+            a_t = np.stack([ax[through], ay[through], az[through]], axis=-1)
+            b_t = np.stack([bx[through], by[through], bz[through]], axis=-1)
+            c1 = np.cross(a_t, ib) + np.cross(ia, b_t)
+            cx, cy, cz = cx.copy(), cy.copy(), cz.copy()
+            cx[through], cy[through], cz[through] = c1[:, 0], c1[:, 1], c1[:, 2]
+            s = s.copy()
+            s[through] = np.linalg.norm(c1, axis=1)
+            gamma = gamma.copy()
+            gamma[through] = np.pi
+    ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
     if normal.ndim == 1:
-        proj = c @ normal
+        proj = cx * normal[0] + cy * normal[1] + cz * normal[2]
     else:
-        proj = np.einsum("fkc,fc->fk", c, normal)
+        proj = cx * normal[:, 0:1] + cy * normal[:, 1:2] + cz * normal[:, 2:3]
     return _INV_2PI * (proj * ratio).sum(axis=1)

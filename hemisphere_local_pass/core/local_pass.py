@@ -78,7 +78,7 @@ def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occl
     Returns ``(fragments, ff)`` with ``ff (F,)`` the form factor of each fragment (eq. 4, >= 0).
     """
     occ = _occluders(scene, occluders)
-    cand, _ = hemisphere_candidates(scene, points, normals, limit, include)
+    cand = hemisphere_candidates(scene, points, normals, limit, include)
     sv, table = shadow_volumes(occ, points, normals, limit)
     ptr, ids, hidden = occluder_pairs(cand, sv, table, occ, scene, points)
     vis = np.flatnonzero(~hidden)

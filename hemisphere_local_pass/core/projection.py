@@ -34,7 +34,7 @@ def receiver_side(normals, first_vertex_rel, scale, limit):
         normals: (n, 3) plane normals; first_vertex_rel: (m, n, 3) a plane vertex minus P;
         scale: (m, n) length scale for the tolerance; limit: (m, 3) limit directions or None.
     """
-    d = np.einsum("mnc,nc->mn", first_vertex_rel, normals)          # n . (v0 - P)
+    d = (first_vertex_rel * normals[None]).sum(axis=2)                 # n . (v0 - P)
     side = np.where(d > PLANE_EPS * scale, 1, np.where(d < -PLANE_EPS * scale, -1, 0)).astype(np.int8)
     if limit is not None:
         on = side == 0
@@ -43,6 +43,24 @@ def receiver_side(normals, first_vertex_rel, scale, limit):
             d_inf = -(limit @ normals.T)                                 # (m, n)
             side = np.where(on, np.where(d_inf > PLANE_EPS, 1, np.where(d_inf < -PLANE_EPS, -1, 0)), side)
             side = side.astype(np.int8)
+    return side
+
+
+def plane_side(normals, rel_center, center_offset, scale, limit):
+    """Side of each plane the receiver is on for sparse (receiver, plane) pairs, ``(C,)`` int8.
+
+    Args:
+        normals: (C, 3) plane normals; rel_center: (C, 3) polygon centre minus P; center_offset: (C,)
+        ``n . (centre - v0)`` (the centre's rounding-level distance from its own plane); scale: (C,);
+        limit: (C, 3) limit directions or None. +1: P behind the plane, -1 in front, 0 in it.
+    """
+    d = (normals * rel_center).sum(axis=1) - center_offset                     # n . (v0 - P)
+    side = np.where(d > PLANE_EPS * scale, 1, np.where(d < -PLANE_EPS * scale, -1, 0)).astype(np.int8)
+    if limit is not None:
+        on = side == 0
+        if on.any():
+            d_inf = -(limit[on] * normals[on]).sum(axis=1)                     # at P + εu: d - ε n.u
+            side[on] = np.where(d_inf > PLANE_EPS, 1, np.where(d_inf < -PLANE_EPS, -1, 0))
     return side
 
 
@@ -64,33 +82,36 @@ class Candidates:
     counts: np.ndarray
 
 
-def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=None) -> tuple[Candidates, np.ndarray]:
+def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=None) -> Candidates:
     """Cull and clip every polygon to the upper hemisphere of every receiver.
 
     Args:
         points, normals: (m, 3) receivers; limit: (m, 3) limit directions (zero rows: none) or None.
         include: optional (m, n) bool of pairs to consider at all (e.g. emitters only).
     Returns:
-        the candidates and the ``(m, n)`` receiver-side array (0 = edge-on, skipped).
+        the candidates (polygons seen edge-on, with P in their plane, are left out).
     """
-    m, n = len(points), scene.n_polygons
     rel_c = scene.poly_centers[None, :, :] - points[:, None, :]               # (m, n, 3)
-    dist_c = np.linalg.norm(rel_c, axis=2)
+    # horizon culling by bounding sphere first (conservative, cheap), then the rest sparsely
+    height_c = np.matmul(rel_c, normals[:, :, None])[..., 0]                  # (m, n)
+    dist_c = np.sqrt((rel_c * rel_c).sum(axis=2))
     scale = dist_c + scene.poly_radii[None, :]
-    rel0 = scene.poly_vertices[None, :, 0, :] - points[:, None, :]
-    side = receiver_side(scene.poly_normals, rel0, scale, limit)
-    # horizon culling by bounding sphere (conservative), then exactly on the vertices
-    height_c = np.einsum("mnc,mc->mn", rel_c, normals)
-    mask = (side != 0) & (height_c + scene.poly_radii[None, :] > PLANE_EPS * scale)
+    mask = height_c + scene.poly_radii[None, :] > PLANE_EPS * scale
     if include is not None:
         mask &= include
     cp, ci = np.nonzero(mask)
+    rel_ci = rel_c[cp, ci]                                                      # (C, 3)
+    side = plane_side(scene.poly_normals[ci], rel_ci, scene.poly_center_offsets[ci], scale[cp, ci],
+                      None if limit is None else limit[cp])
+    keep = side != 0
+    cp, ci, side = cp[keep], ci[keep], side[keep]
     verts = scene.poly_vertices[ci] - points[cp, None, :]                       # (C, K, 3)
     counts = scene.poly_counts[ci]
-    height = np.einsum("ckx,cx->ck", verts, normals[cp])                        # (C, K) above the horizon
+    height = np.matmul(verts, normals[cp][:, :, None])[..., 0]                 # (C, K) above the horizon
     eps = PLANE_EPS * np.abs(verts).max(axis=(1, 2))
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
     above = ((height > eps[:, None]) & valid).any(axis=1)
+    side = side[above]
     cp, ci, verts, counts, height, eps, valid = cp[above], ci[above], verts[above], counts[above], height[above], \
         eps[above], valid[above]
     inf = None
@@ -114,8 +135,7 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
         verts[s], counts[s] = iv, ic
         if inf is not None:
             inf[s] = iinf
-    cand = Candidates(cp, ci, side[cp, ci], verts, inf, counts)
-    return cand, side
+    return Candidates(cp, ci, side, verts, inf, counts)
 
 
 @dataclass

@@ -142,12 +142,16 @@ class Scene:
             self.poly_centers = (self.poly_vertices * w).sum(axis=1) / self.poly_counts[:, None]
             # offsets are for reporting; the core works with receiver-local planes (n . (v0 - P))
             self.poly_offsets = np.einsum("ij,ij->i", self.poly_normals, self.poly_vertices[:, 0])
+            # n . (centre - v0): zero up to rounding; lets n . (v0 - P) come from the centre's offset
+            self.poly_center_offsets = np.einsum("ij,ij->i", self.poly_normals,
+                                                 self.poly_centers - self.poly_vertices[:, 0])
             d = np.linalg.norm(self.poly_vertices - self.poly_centers[:, None, :], axis=2)
             self.poly_radii = np.where(valid, d, 0.0).max(axis=1)
         else:
             self.poly_normals = np.zeros((0, 3))
             self.poly_centers = np.zeros((0, 3))
             self.poly_offsets = np.zeros(0)
+            self.poly_center_offsets = np.zeros(0)
             self.poly_radii = np.zeros(0)
 
     # ------------------------------------------------------------------ construction

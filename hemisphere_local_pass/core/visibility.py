@@ -54,13 +54,18 @@ class ShadowVolumes:
     ``x`` is inside instance q's volume when ``normal[q, j] . x - offset[q, j] > 0`` for every j.
     Unused plane slots have a zero normal and offset -1 (always inside).
 
-    Attributes: point (Q,), occluder (Q,), side (Q,) receiver side of the occluder's plane, normal (Q, J, 3), offset (Q, J), offset_inf (Q, J) or None,
-    near (Q,) distance from P to the nearest point of the occluder's bounding sphere (for ordering).
+    Attributes: point (Q,), occluder (Q,), side (Q,) receiver side of the occluder's plane, verts
+    (Q, Ko, 3) P-local occluder polygon, inf (Q, Ko, 3) or None its first-order part, counts (Q,),
+    normal (Q, J, 3), offset (Q, J), offset_inf (Q, J) or None, near (Q,) distance from P to the
+    nearest point of the occluder's bounding sphere (for ordering).
     """
 
     point: np.ndarray
     occluder: np.ndarray
     side: np.ndarray
+    verts: np.ndarray
+    inf: np.ndarray | None
+    counts: np.ndarray
     normal: np.ndarray
     offset: np.ndarray
     offset_inf: np.ndarray | None
@@ -87,7 +92,7 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     scale = dist_c + occ.radii[None]
     side = receiver_side(occ.normals, occ.vertices[None, :, 0] - points[:, None], scale, limit)
     # an occluder can only hide points above the horizon with its own part above the horizon
-    height_c = np.einsum("moc,mc->mo", rel_c, normals)
+    height_c = np.matmul(rel_c, normals[:, :, None])[..., 0]
     active = (side != 0) & (height_c + occ.radii[None] > PLANE_EPS * scale)
     qp, qo = np.nonzero(active)
     x = occ.vertices[qo] - points[qp, None]                                     # (Q, Ko, 3)
@@ -95,7 +100,7 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     k = x.shape[1]
     valid = np.arange(k)[None] < counts[:, None]
     xs = np.abs(x).max(axis=(1, 2))
-    up = ((np.einsum("qkc,qc->qk", x, normals[qp]) > PLANE_EPS * xs[:, None]) & valid).any(axis=1)
+    up = ((np.matmul(x, normals[qp][:, :, None])[..., 0] > PLANE_EPS * xs[:, None]) & valid).any(axis=1)
     qp, qo, x, counts, valid, xs = qp[up], qo[up], x[up], counts[up], valid[up], xs[up]
     sigma = side[qp, qo].astype(np.float64)                                     # (Q,)
     q = len(qp)
@@ -134,80 +139,181 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     near = dist_c[qp, qo] - occ.radii[qo]
     table = np.full((m, n_o), -1, dtype=np.int64)
     table[qp, qo] = np.arange(q)
-    return ShadowVolumes(qp, qo, side[qp, qo], normal, offset, offset_inf, near), table
+    inf = None if limit is None else np.broadcast_to(-limit[qp][:, None, :], x.shape).copy()
+    return ShadowVolumes(qp, qo, side[qp, qo], x, inf, counts, normal, offset, offset_inf, near), table
+
+
+def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
+    """Filter (body, shadow volume) pairs; returns the kept pair indices and which of them cover the body.
+
+    Tests, cheapest first: bounding cones from P overlap; the body's bounding sphere reaches inside every
+    plane of the volume; exactly, the body's vertices are not all outside one plane. A body whose
+    vertices are inside (or on) every plane lies wholly in the volume: it is *covered* (hidden).
+    """
+    cos_angle = (ax_b[body] * ax_o[q]).sum(axis=1)
+    cos_sum = np.cos(half_b[body] + np.minimum(half_o[q], np.pi))
+    keep = np.flatnonzero((half_b[body] + half_o[q] >= np.pi) | (cos_angle >= cos_sum - 1e-12))
+    rel = center_rel[body[keep]]                                                 # (p, 3)
+    dist = np.matmul(sv.normal[q[keep]], rel[:, :, None])[..., 0] - sv.offset[q[keep]]   # (p, J)
+    reach = radius[body[keep]] * (1.0 + 1e-9) + PLANE_EPS * np.abs(rel).max(axis=1)
+    keep = keep[(dist > -reach[:, None]).all(axis=1)]
+    meets = np.zeros(len(keep), dtype=bool)
+    covered = np.zeros(len(keep), dtype=bool)
+    step = max(1, int(2e6 // (verts.shape[1] * sv.normal.shape[1])))
+    for s in range(0, len(keep), step):
+        b, qq = body[keep[s:s + step]], q[keep[s:s + step]]
+        v = verts[b]
+        side = _all_plane_sides(v, None if inf is None else inf[b], counts[b], np.abs(v).max(axis=(1, 2)), sv, qq)[0]
+        outside_one = ~(side > 0).any(axis=2).all(axis=1)                       # side: (b, J, K)
+        meets[s:s + step] = ~outside_one
+        covered[s:s + step] = ~(side < 0).any(axis=(1, 2)) & ~outside_one
+    return keep[meets], covered[meets]
+
+
+def _expand(owner: np.ndarray, ptr: np.ndarray, values: np.ndarray):
+    """For every ``owner[b]``, all ``values[ptr[o]:ptr[o+1]]``: returns ``(b (P,), value (P,))``."""
+    n = ptr[owner + 1] - ptr[owner]
+    b = np.repeat(np.arange(len(owner)), n)
+    pos = np.arange(len(b)) - np.repeat(np.cumsum(n) - n, n) + np.repeat(ptr[owner], n)
+    return b, values[pos]
 
 
 def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: Occluders, scene, points):
-    """Occluders of every candidate that can hide part of it, nearest first.
+    """Occluders of every candidate that can hide part of it, nearest first (sec. 3.4 culling).
 
-    Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances) and ``hidden (C,)``: candidates
-    that lie wholly inside one shadow volume and need no further work.
+    Two levels. First every occluder (a merged face: the *cluster* of its member polygons) is tested
+    against every other occluder's shadow volume; a cluster wholly inside a volume has all its members
+    hidden, and as an occluder it is redundant (its shadow volume lies inside the other's), so it is
+    dropped. Then only the member polygons of clusters that straddle a volume are tested against that
+    volume. Each test (see :func:`_test_pairs`) needs the body to have a vertex strictly beyond the
+    occluder's plane, on the side away from P (precomputed per scene, per side).
 
-    A pair is kept when the candidate has a vertex strictly beyond the occluder's plane on the side
-    away from P (precomputed, per side) and their bounding cones from P overlap.
+    Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances per candidate) and ``hidden (C,)``:
+    candidates wholly inside one shadow volume, which need no further work.
     """
-    c_n = len(cand.point)
-    if c_n == 0 or len(sv.point) == 0:
+    c_n, n_q, n_o = len(cand.point), len(sv.point), occ.n
+    if c_n == 0 or n_q == 0:
         return np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(c_n, dtype=bool)
-    # dense over (candidate, occluder) in blocks of candidates
-    n_o = occ.n
-    ids_all, owner_all, near_all = [], [], []
-    block = max(1, int(2e6 // max(1, n_o)))
-    for s in range(0, c_n, block):
-        cp = cand.point[s:s + block]
-        ci = cand.poly[s:s + block]
-        q = table[cp]                                                           # (b, n_o)
-        has = q >= 0
-        qs = np.where(has, q, 0)
-        sig_pos = sv.side[qs] > 0                                               # (b, n_o)
-        beyond = np.where(sig_pos, occ.beyond_pos[ci], occ.beyond_neg[ci]) & has
-        beyond &= occ.members[ci][:, None] != np.arange(n_o)[None]
-        if not beyond.any():
-            continue
-        b_idx, o_idx = np.nonzero(beyond)
-        qq = q[b_idx, o_idx]
-        # bounding cones, seen from the receiver
-        p = cp[b_idx]
-        ax_c, half_c, _ = _cone(scene.poly_centers[ci[b_idx]] - points[p], scene.poly_radii[ci[b_idx]])
-        ax_o, half_o, _ = _cone(occ.centers[o_idx] - points[p], occ.radii[o_idx])
-        cosang = np.clip(np.einsum("pc,pc->p", ax_c, ax_o), -1.0, 1.0)
-        overlap = np.arccos(cosang) <= half_c + half_o + 1e-9
-        ids_all.append(qq[overlap])
-        owner_all.append(s + b_idx[overlap])
-        near_all.append(sv.near[qq[overlap]])
-    empty = np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(c_n, dtype=bool)
-    if not ids_all:
-        return empty
-    ids = np.concatenate(ids_all)
-    owner = np.concatenate(owner_all)
-    near = np.concatenate(near_all)
-    # exact prefilter on the candidate's clipped vertices: a candidate wholly outside one plane of a
-    # shadow volume does not meet it; one wholly inside every plane is hidden entirely
-    meets = np.zeros(len(ids), dtype=bool)
-    covered = np.zeros(len(ids), dtype=bool)
-    step = max(1, int(2e6 // (cand.verts.shape[1] * sv.normal.shape[1])))
-    for s in range(0, len(ids), step):
-        q, c = ids[s:s + step], owner[s:s + step]
-        v, cnt = cand.verts[c], cand.counts[c]
-        inf = None if cand.inf is None else cand.inf[c]
-        outside_one = np.zeros(len(q), dtype=bool)
-        inside_all = np.ones(len(q), dtype=bool)
-        scale = np.abs(v).max(axis=(1, 2))
-        for j in range(sv.normal.shape[1]):
-            side = _plane_sides(v, inf, cnt, scale, sv, q, j)[0]
-            outside_one |= ~(side > 0).any(axis=1)
-            inside_all &= ~(side < 0).any(axis=1)
-        meets[s:s + step] = ~outside_one
-        covered[s:s + step] = inside_all & ~outside_one
+    # bounding cones seen from P, once per body
+    o_rel = occ.centers[sv.occluder] - points[sv.point]
+    ax_o, half_o, _ = _cone(o_rel, occ.radii[sv.occluder])
+
+    # level 1: clusters (occluder instances) against shadow volumes, dense over (instance, occluder)
+    q_tab = table[sv.point]                                                      # (Q, n_o)
+    has = q_tab >= 0
+    sig_pos = sv.side[np.where(has, q_tab, 0)] > 0
+    beyond = np.where(sig_pos, occ.occ_beyond_pos[sv.occluder], occ.occ_beyond_neg[sv.occluder]) & has
+    # ... and the volume's occluder must reach to P's side of the cluster's plane
+    k_front_pos = sv.side < 0                                                    # (Q,) P on the + side
+    beyond &= np.where(k_front_pos[:, None], occ.occ_beyond_pos.T[sv.occluder], occ.occ_beyond_neg.T[sv.occluder])
+    beyond[np.arange(n_q), sv.occluder] = False
+    k_idx, o_idx = np.nonzero(beyond)
+    kq = q_tab[k_idx, o_idx]
+    kept, cov = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.radii[sv.occluder], sv,
+                            ax_o, half_o, ax_o, half_o)
+    k_idx, kq = k_idx[kept], kq[kept]
+    cluster_covered = np.zeros(n_q, dtype=bool)
+    cluster_covered[k_idx[cov]] = True
+    live = ~cluster_covered[kq] & ~cov          # pairs with a non-redundant volume that cut the cluster
+    k_idx, kq = k_idx[live], kq[live]
+    order = np.argsort(k_idx, kind="stable")
+    k_idx, kq = k_idx[order], kq[order]
+    k_ptr = np.zeros(n_q + 1, dtype=np.int64)
+    np.add.at(k_ptr, k_idx + 1, 1)
+    k_ptr = np.cumsum(k_ptr)
+
+    # level 1.5: tiles (sec. 3.4's voxels) of large clusters against their cluster's cutting volumes,
+    # tested by the corners of their bounding boxes
+    n_tiles = len(occ.tile_occluder)
+    tiled = np.bincount(occ.members, minlength=n_o)[occ.tile_occluder] > 1  # (T,) tile of a merged face
+    t_live = np.flatnonzero(tiled)
+    m = len(points)
+    t_tab = np.full((m, n_tiles), -1, dtype=np.int64)
+    t_ptr = np.zeros(1, dtype=np.int64)
+    t_q = np.zeros(0, dtype=np.int64)
+    t_cov = np.zeros(0, dtype=bool)
+    if len(t_live):
+        tk = table[:, occ.tile_occluder[t_live]]                                # (m, T') cluster instances
+        tk_safe = np.maximum(tk, 0)
+        use = (tk >= 0) & (k_ptr[tk_safe + 1] > k_ptr[tk_safe]) & ~cluster_covered[tk_safe]
+        tp, tt = np.nonzero(use)
+        tile = t_live[tt]
+        t_tab[tp, tile] = np.arange(len(tp))
+        tk = tk[tp, tt]
+        corners = occ.tile_corners[tile] - points[tp][:, None, :]              # (I, 8, 3)
+        t_rel = occ.tile_centers[tile] - points[tp]
+        ax_t, half_t, _ = _cone(t_rel, occ.tile_radii[tile])
+        tb, tq = _expand(tk, k_ptr, kq)
+        t_inf = None if sv.inf is None else np.broadcast_to(sv.inf[tk][:, :1], corners.shape).copy()
+        kept, cov = _test_pairs(tb, tq, corners, t_inf, np.full(len(tp), 8), t_rel, occ.tile_radii[tile], sv,
+                                ax_t, half_t, ax_o, half_o)
+        tb, tq = tb[kept], tq[kept]
+        t_cov = np.zeros(len(tp), dtype=bool)
+        t_cov[tb[cov]] = True
+        live_t = ~cov
+        tb, tq = tb[live_t], tq[live_t]
+        order = np.argsort(tb, kind="stable")
+        t_q = tq[order]
+        t_ptr = np.zeros(len(tp) + 1, dtype=np.int64)
+        np.add.at(t_ptr, tb + 1, 1)
+        t_ptr = np.cumsum(t_ptr)
+
+    # level 2: member polygons of straddling clusters (or tiles) against those volumes
+    k_of = table[cand.point, occ.members[cand.poly]]                            # (C,) cluster instance
+    ti = t_tab[cand.point, occ.tile_of[cand.poly]]                              # (C,) tile instance or -1
     hidden = np.zeros(c_n, dtype=bool)
-    hidden[owner[covered]] = True
-    keep = meets & ~hidden[owner]
-    ids, owner, near = ids[keep], owner[keep], near[keep]
-    order = np.lexsort((near, owner))
-    ids, owner = ids[order], owner[order]
+    found = k_of >= 0
+    hidden[found] = cluster_covered[k_of[found]]
+    by_tile = ti >= 0
+    hidden[by_tile] |= t_cov[ti[by_tile]]
+    from_cluster = np.flatnonzero(found & ~by_tile & ~hidden)
+    from_tile = np.flatnonzero(by_tile & ~hidden)
+    b1, q1 = _expand(k_of[from_cluster], k_ptr, kq)
+    b2, q2 = _expand(ti[from_tile], t_ptr, t_q)
+    body = np.concatenate([from_cluster[b1], from_tile[b2]])
+    q = np.concatenate([q1, q2])
+    if (~found).any():  # a candidate whose cluster was culled (numerically at the horizon): all volumes
+        lost = np.flatnonzero(~found)
+        lb, lo = np.nonzero(table[cand.point[lost]] >= 0)
+        body = np.concatenate([body, lost[lb]])
+        q = np.concatenate([q, table[cand.point[lost[lb]], lo]])
+    if len(body):
+        ci = cand.poly[body]
+        sig = sv.side[q] > 0
+        beyond = np.where(sig, occ.beyond_pos[ci, sv.occluder[q]], occ.beyond_neg[ci, sv.occluder[q]])
+        p_pos = cand.side[body] < 0                                              # P on the + side of the body
+        beyond &= np.where(p_pos, occ.front_pos[ci, sv.occluder[q]], occ.front_neg[ci, sv.occluder[q]])
+        body, q = body[beyond], q[beyond]
+    c_rel = scene.poly_centers[cand.poly] - points[cand.point]
+    ax_c, half_c, _ = _cone(c_rel, scene.poly_radii[cand.poly])
+    kept, cov = _test_pairs(body, q, cand.verts, cand.inf, cand.counts, c_rel, scene.poly_radii[cand.poly], sv,
+                            ax_c, half_c, ax_o, half_o)
+    body, q = body[kept], q[kept]
+    hidden[body[cov]] = True
+    keep = ~hidden[body]
+    body, q = body[keep], q[keep]
+    order = np.lexsort((sv.near[q], body))
+    ids, body = q[order], body[order]
     ptr = np.zeros(c_n + 1, dtype=np.int64)
-    np.add.at(ptr, owner + 1, 1)
+    np.add.at(ptr, body + 1, 1)
     return np.cumsum(ptr), ids, hidden
+
+
+def _all_plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray):
+    """Sides (W, J, K) of fragment vertices w.r.t. every plane of volumes ``q`` (W,), with the signed
+    distances (W, J, K), their first-order parts or None, and the tolerances (W, J)."""
+    nrm = sv.normal[q]                                                           # (W, J, 3)
+    off = sv.offset[q]                                                           # (W, J)
+    s_re = np.matmul(nrm, verts.transpose(0, 2, 1)) - off[:, :, None]                 # (W, J, K)
+    eps = PLANE_EPS * (scale[:, None] + np.abs(off))
+    side = (s_re > eps[:, :, None]).astype(np.int8) - (s_re < -eps[:, :, None])
+    s_inf = None
+    if inf is not None:
+        s_inf = np.matmul(nrm, inf.transpose(0, 2, 1)) - sv.offset_inf[q][:, :, None]
+        on = side == 0
+        side[on] = (s_inf[on] > PLANE_EPS).astype(np.int8) - (s_inf[on] < -PLANE_EPS)
+    side[np.broadcast_to((np.arange(verts.shape[1])[None, :] >= counts[:, None])[:, None, :], side.shape)] = 0
+    return side, s_re, s_inf, eps
 
 
 def _plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray, j):
@@ -217,10 +323,10 @@ def _plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray, j)
     """
     nrm = sv.normal[q, j]
     off = sv.offset[q, j]
-    s_re = np.einsum("wkc,wc->wk", verts, nrm) - off[:, None]
+    s_re = np.matmul(verts, nrm[:, :, None])[..., 0] - off[:, None]
     s_inf = None
     if inf is not None:
-        s_inf = np.einsum("wkc,wc->wk", inf, nrm) - sv.offset_inf[q, j][:, None]
+        s_inf = np.matmul(inf, nrm[:, :, None])[..., 0] - sv.offset_inf[q, j][:, None]
     eps = PLANE_EPS * (scale + np.abs(off))
     side = classify(s_re, eps, s_inf)
     side[np.arange(verts.shape[1])[None, :] >= counts[:, None]] = 0
@@ -259,8 +365,18 @@ def subtract_shadow_volumes(frags: Fragments, owner: np.ndarray, ptr: np.ndarray
         scale = np.abs(work.verts).max(axis=(1, 2))
         item = np.arange(n_w)
         pieces = []
+        side_all, sre_all, sinf_all, eps_all = _all_plane_sides(cur_v, cur_i, cur_c, scale, sv, q_of)
+        cut_before = np.zeros(n_w, dtype=bool)
         for j in range(j_planes):
-            side, s_re, s_inf, eps = _plane_sides(cur_v, cur_i, cur_c, scale[item], sv, q_of[item], j)
+            side, s_re, eps = side_all[item, j], sre_all[item, j], eps_all[item, j]
+            s_inf = sinf_all[item, j] if dual else None
+            redo = np.flatnonzero(cut_before[item])
+            if len(redo):  # these rows were clipped by an earlier plane: their vertices changed
+                sd, sr, si, ep = _plane_sides(cur_v[redo], None if not dual else cur_i[redo], cur_c[redo],
+                                              scale[item[redo]], sv, q_of[item[redo]], j)
+                side[redo], s_re[redo] = sd, sr   # fancy-indexed copies: safe to overwrite
+                if dual:
+                    s_inf[redo] = si
             has_in = (side > 0).any(axis=1)
             has_out = (side < 0).any(axis=1)
             # wholly outside this plane: the fragment does not meet the volume and stays whole;
@@ -278,6 +394,7 @@ def subtract_shadow_volumes(frags: Fragments, owner: np.ndarray, ptr: np.ndarray
                     cur_i[cut, : k + 1] = ii
                     cur_i[cut, k + 1:] = ii[:, -1:]
                 cur_c[cut] = ic
+                cut_before[item[cut]] = True
             item, cur_v, cur_c = item[has_in], cur_v[has_in], cur_c[has_in]
             cur_i = cur_i[has_in] if dual else None
             if len(item) == 0:
