@@ -105,32 +105,27 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
                       None if limit is None else limit[cp])
     keep = side != 0
     cp, ci, side = cp[keep], ci[keep], side[keep]
-    verts = scene.poly_vertices[ci] - points[cp, None, :]                       # (C, K, 3)
+    eps = PLANE_EPS * scale[cp, ci]
+    # one spare slot: clipping a convex polygon by one plane adds at most one vertex
+    verts = scene.poly_vertices_spare[ci] - points[cp, None, :]                 # (C, K+1, 3)
     counts = scene.poly_counts[ci]
-    height = np.matmul(verts, normals[cp][:, :, None])[..., 0]                 # (C, K) above the horizon
-    eps = PLANE_EPS * np.abs(verts).max(axis=(1, 2))
+    height = np.matmul(verts, normals[cp][:, :, None])[..., 0]                 # (C, K+1) above the horizon
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
     above = ((height > eps[:, None]) & valid).any(axis=1)
-    side = side[above]
-    cp, ci, verts, counts, height, eps, valid = cp[above], ci[above], verts[above], counts[above], height[above], \
-        eps[above], valid[above]
+    straddle = ((height < -eps[:, None]) & valid).any(axis=1)
+    if not above.all():
+        side, cp, ci, verts, counts, height, eps, straddle = (
+            x[above] for x in (side, cp, ci, verts, counts, height, eps, straddle))
     inf = None
     if limit is not None:
         inf = np.broadcast_to(-limit[cp, None, :], verts.shape).copy()
-    straddle = ((height < -eps[:, None]) & valid).any(axis=1)
-    width = verts.shape[1] + (1 if straddle.any() else 0)
-    if width > verts.shape[1]:
-        pad = np.repeat(verts[:, -1:], 1, axis=1)
-        verts = np.concatenate([verts, pad], axis=1)
-        if inf is not None:
-            inf = np.concatenate([inf, inf[:, -1:]], axis=1)
     if straddle.any():
         s = np.flatnonzero(straddle)
-        k = width - 1
+        k = verts.shape[1] - 1
         (iv, ic, iinf), _ = split_convex(
-            verts[s, :k], counts[s], height[s], eps[s],
+            verts[s, :k], counts[s], height[s, :k], eps[s],
             inf=None if inf is None else inf[s, :k],
-            s_inf=None if inf is None else np.zeros_like(height[s]),  # N . u = 0: u is tangent
+            s_inf=None if inf is None else np.zeros_like(height[s, :k]),  # N . u = 0: u is tangent
         )
         verts[s], counts[s] = iv, ic
         if inf is not None:
@@ -144,8 +139,9 @@ class Projection:
 
     Attributes:
         point, normal: (3,) the receiver.
-        fragments: list of (k_i, 3) unit vectors: the visible spherical polygons, counter-clockwise seen
-            from P; edges are great-circle arcs between consecutive vertices.
+        fragments: list of (k_i, 3) unit vectors: the visible spherical polygons, positively oriented
+            about P (``v0 . (v1 × v2) > 0``: counter-clockwise seen from outside the sphere); edges are
+            great-circle arcs between consecutive vertices.
         polygon: (F,) input polygon of each fragment.
         form_factor: (F,) form factor of each fragment (eq. 4).
         distance: list of (k_i,) distances from P to the fragment's vertices (paper's dist(v)).
@@ -176,7 +172,7 @@ def project_point(scene: Scene, point, normal, *, limit_direction=None, occluder
         if frags.inf is not None and (d == 0).any():
             iv = frags.inf[f, :k]
             dirs = np.where((d == 0)[:, None], iv / np.linalg.norm(iv, axis=1, keepdims=True), dirs)
-        if frags.side[f] > 0:  # receiver behind: the vertices run clockwise seen from P; reverse
+        if frags.side[f] < 0:  # receiver in front: make every fragment positively oriented about P
             dirs, d = dirs[::-1], d[::-1]
         fragments.append(dirs)
         dists.append(d)

@@ -133,6 +133,8 @@ class Scene:
         self.dropped = dict(dropped or {})
         self.polygon_names = polygon_names
         n = len(self.poly_counts)
+        # the same with one spare slot (repeating the last vertex), for clipping without re-padding
+        self.poly_vertices_spare = np.concatenate([self.poly_vertices, self.poly_vertices[:, -1:]], axis=1)
         if n:
             k = self.poly_vertices.shape[1]
             valid = np.arange(k)[None, :] < self.poly_counts[:, None]  # (n, K)
