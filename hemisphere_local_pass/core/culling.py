@@ -49,6 +49,9 @@ class Occluders:
         tile_of: (n,) tile of every polygon; tiles split the members of large merged occluders into
             spatial groups of about :data:`TILE_SIZE` (sec. 3.4's voxels): tile_corners (T, 8, 3) the
             corners of each tile's bounding box, tile_centers (T, 3), tile_radii (T,), tile_occluder (T,).
+        coplanar_ptr (n+1,), coplanar_occ: CSR lists of the occluders in whose plane polygon i lies
+            without being part of them (overlapping duplicates, reversed copies).
+        first_source: (n_o,) lowest input polygon index among each occluder's members (tie-break).
     """
 
     vertices: np.ndarray
@@ -68,6 +71,9 @@ class Occluders:
     tile_centers: np.ndarray
     tile_radii: np.ndarray
     tile_occluder: np.ndarray
+    coplanar_ptr: np.ndarray
+    coplanar_occ: np.ndarray
+    first_source: np.ndarray
 
     @property
     def n(self) -> int:
@@ -193,8 +199,19 @@ def build_occluders(scene: Scene) -> Occluders:
     else:
         front_pos = front_neg = np.zeros((0, len(loops)), dtype=bool)
     tiles = _tiles(scene, members, len(loops))
+    # coplanar overlapping surfaces (duplicates, reversed copies): polygon i lies in the plane of
+    # occluder o but is not part of it; the visibility stage lets one of them win where they overlap
+    coplanar = ~(beyond_pos | beyond_neg)
+    if n:
+        coplanar[np.arange(n), members] = False
+    ci, co = np.nonzero(coplanar)
+    cop_ptr = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(cop_ptr, ci + 1, 1)
+    first_source = np.full(len(loops), np.iinfo(np.int64).max)
+    if n:
+        np.minimum.at(first_source, members, scene.poly_source)
     return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
-                     front_pos, front_neg, *tiles)
+                     front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source)
 
 
 #: target number of member polygons per tile of a merged occluder

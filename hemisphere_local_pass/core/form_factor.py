@@ -52,9 +52,12 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     bx = np.concatenate([ax[:, 1:], ax[:, :1]], axis=1)
     by = np.concatenate([ay[:, 1:], ay[:, :1]], axis=1)
     bz = np.concatenate([az[:, 1:], az[:, :1]], axis=1)
-    cx = ay * bz - az * by                                                    # a × b
-    cy = az * bx - ax * bz
-    cz = ax * by - ay * bx
+    # a × b computed as a × (b − a): the same vector, but for a short edge far from P the raw products
+    # of a×b cancel to the last digits (a 1e-6 polygon at distance 1 would lose six of them)
+    ex, ey, ez = bx - ax, by - ay, bz - az
+    cx = ay * ez - az * ey
+    cy = az * ex - ax * ez
+    cz = ax * ey - ay * ex
     s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
     d = ax * bx + ay * by + az * bz                                           # a·b
     gamma = np.arctan2(s, d)

@@ -141,6 +141,8 @@ def form_factors(
         frags, ff = visible_fragments_with_ff(scene, p, n, u, occluders=occluders)
         key = frags.point * scene.n_input + scene.poly_source[frags.poly]
         out[s:e] = np.bincount(key, weights=ff, minlength=(e - s) * scene.n_input).reshape(e - s, scene.n_input)
+        # a polygon can fill the hemisphere (F = 1 exactly); the fragment sum may round to 1 + 2e-16
+        np.minimum(out[s:e], 1.0, out=out[s:e])
 
     _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
     return out

@@ -70,6 +70,11 @@ class ShadowVolumes:
     offset: np.ndarray
     offset_inf: np.ndarray | None
     near: np.ndarray
+    n_base: int = -1          # instances 0..n_base-1 are full volumes; the rest their cone-only copies
+
+    def __post_init__(self):
+        if self.n_base < 0:
+            self.n_base = len(self.point)
 
 
 def _cone(rel_c: np.ndarray, radius: np.ndarray):
@@ -140,7 +145,34 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     table = np.full((m, n_o), -1, dtype=np.int64)
     table[qp, qo] = np.arange(q)
     inf = None if limit is None else np.broadcast_to(-limit[qp][:, None, :], x.shape).copy()
-    return ShadowVolumes(qp, qo, side[qp, qo], x, inf, counts, normal, offset, offset_inf, near), table
+    sv = ShadowVolumes(qp, qo, side[qp, qo], x, inf, counts, normal, offset, offset_inf, near)
+    if len(occ.coplanar_occ):
+        sv = _with_cone_only(sv)
+    return sv, table
+
+
+def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
+    """Append, as instances Q..2Q-1, each volume's *cone only* (its depth plane made always-inside).
+
+    Used against polygons lying in the occluder's own plane (coplanar overlapping surfaces): there the
+    depth test cannot decide, and the occluder's cone is exactly the overlap.
+    """
+    normal = sv.normal.copy()
+    offset = sv.offset.copy()
+    normal[:, 0] = 0.0
+    offset[:, 0] = -1.0
+    offset_inf = None
+    if sv.offset_inf is not None:
+        offset_inf = sv.offset_inf.copy()
+        offset_inf[:, 0] = 0.0
+
+    def twice(a):
+        return None if a is None else np.concatenate([a, a])
+
+    return ShadowVolumes(
+        twice(sv.point), twice(sv.occluder), twice(sv.side), twice(sv.verts), twice(sv.inf), twice(sv.counts),
+        np.concatenate([sv.normal, normal]), np.concatenate([sv.offset, offset]),
+        None if offset_inf is None else np.concatenate([sv.offset_inf, offset_inf]), twice(sv.near), len(sv.point))
 
 
 def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
@@ -191,7 +223,7 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
     Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances per candidate) and ``hidden (C,)``:
     candidates wholly inside one shadow volume, which need no further work.
     """
-    c_n, n_q, n_o = len(cand.point), len(sv.point), occ.n
+    c_n, n_q, n_o = len(cand.point), sv.n_base, occ.n
     if c_n == 0 or n_q == 0:
         return np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(c_n, dtype=bool)
     # bounding cones seen from P, once per body
@@ -199,14 +231,15 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
     ax_o, half_o, _ = _cone(o_rel, occ.radii[sv.occluder])
 
     # level 1: clusters (occluder instances) against shadow volumes, dense over (instance, occluder)
-    q_tab = table[sv.point]                                                      # (Q, n_o)
+    k_occ = sv.occluder[:n_q]
+    q_tab = table[sv.point[:n_q]]                                                # (Q, n_o)
     has = q_tab >= 0
     sig_pos = sv.side[np.where(has, q_tab, 0)] > 0
-    beyond = np.where(sig_pos, occ.occ_beyond_pos[sv.occluder], occ.occ_beyond_neg[sv.occluder]) & has
+    beyond = np.where(sig_pos, occ.occ_beyond_pos[k_occ], occ.occ_beyond_neg[k_occ]) & has
     # ... and the volume's occluder must reach to P's side of the cluster's plane
-    k_front_pos = sv.side < 0                                                    # (Q,) P on the + side
-    beyond &= np.where(k_front_pos[:, None], occ.occ_beyond_pos.T[sv.occluder], occ.occ_beyond_neg.T[sv.occluder])
-    beyond[np.arange(n_q), sv.occluder] = False
+    k_front_pos = sv.side[:n_q] < 0                                              # (Q,) P on the + side
+    beyond &= np.where(k_front_pos[:, None], occ.occ_beyond_pos.T[k_occ], occ.occ_beyond_neg.T[k_occ])
+    beyond[np.arange(n_q), k_occ] = False
     k_idx, o_idx = np.nonzero(beyond)
     kq = q_tab[k_idx, o_idx]
     kept, cov = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.radii[sv.occluder], sv,
@@ -284,6 +317,17 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
         p_pos = cand.side[body] < 0                                              # P on the + side of the body
         beyond &= np.where(p_pos, occ.front_pos[ci, sv.occluder[q]], occ.front_neg[ci, sv.occluder[q]])
         body, q = body[beyond], q[beyond]
+    if len(occ.coplanar_occ):
+        # coplanar overlapping surfaces: the one facing P wins, then the lower input index
+        cb, co = _expand(cand.poly, occ.coplanar_ptr, occ.coplanar_occ)
+        cq = table[cand.point[cb], co]
+        ok = (cq >= 0) & ~hidden[cb]
+        cb, co, cq = cb[ok], co[ok], cq[ok]
+        faces_o = sv.side[cq] < 0
+        faces_c = cand.side[cb] < 0
+        wins = (faces_o & ~faces_c) | ((faces_o == faces_c) & (occ.first_source[co] < scene.poly_source[cand.poly[cb]]))
+        body = np.concatenate([body, cb[wins]])
+        q = np.concatenate([q, cq[wins] + sv.n_base])                          # the cone-only copy
     c_rel = scene.poly_centers[cand.poly] - points[cand.point]
     ax_c, half_c, _ = _cone(c_rel, scene.poly_radii[cand.poly])
     kept, cov = _test_pairs(body, q, cand.verts, cand.inf, cand.counts, c_rel, scene.poly_radii[cand.poly], sv,
