@@ -153,7 +153,9 @@ def build_occluders(scene: Scene) -> Occluders:
                              axis=1)
         _, plane_id = np.unique(key, axis=0, return_inverse=True)
         plane_id = plane_id.reshape(-1)
-        order = np.argsort(plane_id, kind="stable")
+        # identical copies are projected once (Scene._find_duplicates): only representatives occlude
+        reps = np.flatnonzero(scene.dup_rep == np.arange(n))
+        order = reps[np.argsort(plane_id[reps], kind="stable")]
         bounds = np.flatnonzero(np.diff(plane_id[order])) + 1
         members = np.full(n, -1)
         for grp in np.split(order, bounds):
@@ -188,16 +190,19 @@ def build_occluders(scene: Scene) -> Occluders:
 
     # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
     if n:
-        beyond_pos, beyond_neg = _beyond(scene.poly_vertices, scene.poly_counts, verts, normals)
+        beyond_pos, beyond_neg = _beyond(scene.poly_vertices, scene.poly_counts, verts, normals, _tilt(verts, counts))
     else:
         beyond_pos = beyond_neg = np.zeros((0, len(loops)), dtype=bool)
-    occ_pos, occ_neg = _beyond(verts, counts, verts, normals)
+    occ_pos, occ_neg = _beyond(verts, counts, verts, normals, _tilt(verts, counts))
     # and the converse: does occluder o reach to either side of polygon i's plane (it can only hide a
     # part of i from a receiver on a side it reaches to)
     if n:
-        front_pos, front_neg = (t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices, scene.poly_normals))
+        front_pos, front_neg = (t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices, scene.poly_normals,
+                                                                _tilt(scene.poly_vertices, scene.poly_counts)))
     else:
         front_pos = front_neg = np.zeros((0, len(loops)), dtype=bool)
+    if n:
+        members = members[scene.dup_rep]
     tiles = _tiles(scene, members, len(loops))
     # coplanar overlapping surfaces (duplicates, reversed copies): polygon i lies in the plane of
     # occluder o but is not part of it; the visibility stage lets one of them win where they overlap
@@ -252,11 +257,25 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     return tile_of, corners, centers, radii, np.array(occ_of, dtype=np.int64)
 
 
-def _beyond(body_verts, body_counts, occ_verts, occ_normals):
+def _tilt(verts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(k,) angular uncertainty (radians) of the Newell normals of padded polygons ``verts (k, K, 3)``.
+
+    A normal built from vertex differences of size s over an area A is uncertain by about
+    ulp · s² / A: negligible for a fair polygon, large for a sliver, whose plane then really is only
+    known that well (its vertices may sit 1e-5 off a "plane" fitted to rounding noise).
+    """
+    rel = verts - verts[:, :1]
+    area = 0.5 * np.linalg.norm(np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1), axis=1)
+    size = np.linalg.norm(rel, axis=2).max(axis=1)
+    return 8 * np.finfo(np.float64).eps * size * size / np.maximum(area, np.finfo(np.float64).tiny)
+
+
+def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     """(B, n_o) bool pair: body b has a vertex strictly on the positive / negative side of occluder o.
 
     Signed distances are taken relative to a vertex of the occluder: differences of nearby world
-    coordinates are exact, so scenes far from the origin keep their precision.
+    coordinates are exact, so scenes far from the origin keep their precision. "Strictly" allows for
+    the occluder plane's own uncertainty ``occ_tilt (n_o,)`` (see :func:`_tilt`).
     """
     b_n, k = body_verts.shape[:2]
     n_o = len(occ_verts)
@@ -267,7 +286,7 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals):
     for s in range(0, b_n, step):
         rel = body_verts[s:s + step, :, None, :] - occ_verts[None, None, :, 0, :]     # (b, K, n_o, 3)
         d = (rel * occ_normals[None, None]).sum(axis=3)                               # (b, K, n_o)
-        eps = 4 * PLANE_EPS * np.abs(rel).max(axis=(1, 3))                            # (b, n_o)
+        eps = (4 * PLANE_EPS + occ_tilt[None, :]) * np.abs(rel).max(axis=(1, 3))      # (b, n_o)
         d = np.where(valid[s:s + step, :, None], d, 0.0)
         pos[s:s + step] = (d > eps[:, None, :]).any(axis=1)
         neg[s:s + step] = (d < -eps[:, None, :]).any(axis=1)

@@ -30,7 +30,8 @@ def directions(verts: np.ndarray, inf: np.ndarray | None) -> np.ndarray:
         return verts
     length = np.linalg.norm(verts, axis=2)                                   # (F, K)
     scale = length.max(axis=1, keepdims=True)
-    at_p = length <= PLANE_EPS * scale
+    # rows without a limit direction (inf = 0) keep their real directions, however short
+    at_p = (length <= PLANE_EPS * scale) & (np.abs(inf) > 0).any(axis=2)
     if not at_p.any():
         return verts
     return np.where(at_p[..., None], inf * scale[..., None], verts)
@@ -66,6 +67,7 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
         # γ = π) and its great circle is the limit of the planes through P + εu: use the first-order
         # part of the cross product, (a + ε a')×(b + ε b') = a×b + ε (a×b' + a'×b)
         through = (s <= PLANE_EPS * np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz))) & (d < 0)
+        through &= (np.abs(inf) > 0).any(axis=2)                              # only rows with a limit
         if through.any():
             ia = inf[through]
             ib = np.concatenate([inf[:, 1:], inf[:, :1]], axis=1)[through]
@@ -79,8 +81,44 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
             gamma = gamma.copy()
             gamma[through] = np.pi
     ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
-    if normal.ndim == 1:
-        proj = cx * normal[0] + cy * normal[1] + cz * normal[2]
-    else:
-        proj = cx * normal[:, 0:1] + cy * normal[:, 1:2] + cz * normal[:, 2:3]
-    return _INV_2PI * (proj * ratio).sum(axis=1)
+    nrm = np.broadcast_to(normal, (a.shape[0], 3))
+    proj = cx * nrm[:, 0:1] + cy * nrm[:, 1:2] + cz * nrm[:, 2:3]
+    terms = proj * ratio                                                      # (F, K)
+    total = terms.sum(axis=1)
+    # Where the edge terms cancel (a small factor from large terms: a wall seen from near its foot, a
+    # sliver near the horizon) each term's rounding is amplified by Σ|t| / |Σ t|; redo those rows in
+    # extended precision (80-bit on x86; where longdouble is double this changes nothing).
+    cond = np.abs(terms).sum(axis=1)
+    bad = cond > _CANCELLATION * np.abs(total)
+    if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
+        total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], None if inf is None else
+                                     (cx[bad], cy[bad], cz[bad]))
+    return _INV_2PI * total
+
+
+#: relative cancellation in eq. 4 above which a row is recomputed in extended precision
+_CANCELLATION = 1e3
+
+
+def _terms_extended(a, normal, nonzero, gamma64, first_order):
+    """Σ of eq. 4's edge terms in ``np.longdouble`` for rows ``a (R, K, 3)`` (see contour_integral)."""
+    if first_order is not None:  # rows with edges through P (one-sided limits): keep float64 terms there
+        cx, cy, cz = first_order
+    a = a.astype(np.longdouble)
+    b = np.concatenate([a[:, 1:], a[:, :1]], axis=1)
+    e = b - a
+    c = np.stack([a[..., 1] * e[..., 2] - a[..., 2] * e[..., 1],
+                  a[..., 2] * e[..., 0] - a[..., 0] * e[..., 2],
+                  a[..., 0] * e[..., 1] - a[..., 1] * e[..., 0]], axis=-1)
+    s = np.sqrt((c * c).sum(axis=-1))
+    d = (a * b).sum(axis=-1)
+    gamma = np.arctan2(s, d)
+    if first_order is not None:
+        through = gamma64 == np.pi
+        c = np.where(through[..., None], np.stack([cx, cy, cz], axis=-1).astype(np.longdouble), c)
+        s = np.where(through, np.sqrt((c * c).sum(axis=-1)), s)
+        gamma = np.where(through, np.longdouble(np.pi), gamma)
+    ok = nonzero & (s > 0)
+    ratio = np.where(ok, gamma / np.where(ok, s, 1), 0)
+    proj = (c * normal.astype(np.longdouble)[:, None, :]).sum(axis=-1)
+    return np.asarray((proj * ratio).sum(axis=1), dtype=np.float64)

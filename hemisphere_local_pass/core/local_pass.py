@@ -78,6 +78,9 @@ def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occl
     Returns ``(fragments, ff)`` with ``ff (F,)`` the form factor of each fragment (eq. 4, >= 0).
     """
     occ = _occluders(scene, occluders)
+    reps = scene.dup_rep == np.arange(scene.n_polygons)
+    if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
+        include = reps[None, :] if include is None else include & reps[None, :]
     cand = hemisphere_candidates(scene, points, normals, limit, include)
     sv, table = shadow_volumes(occ, points, normals, limit)
     ptr, ids, hidden = occluder_pairs(cand, sv, table, occ, scene, points)
@@ -85,9 +88,29 @@ def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occl
     frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
                       cand.point[vis], cand.poly[vis], cand.side[vis])
     frags, _ = subtract_shadow_volumes(frags, vis, ptr, ids, sv)
-    ff = frags.side * contour_integral(frags.verts, normals[frags.point], frags.inf)
+    ff = frags.side * _contour_by_width(frags, normals)
+    if not reps.all():
+        # credit each fragment to the copy that faces the receiver (then the lowest index)
+        rep = frags.poly
+        opp = scene.dup_opp[rep]
+        use_opp = (frags.side > 0) & (opp >= 0)
+        frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
+        frags.side = np.where(use_opp, -frags.side, frags.side)
     # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
     return frags, np.maximum(ff, 0.0)
+
+
+def _contour_by_width(frags: Fragments, normals) -> np.ndarray:
+    """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots."""
+    width = frags.verts.shape[1]
+    small = frags.counts <= 4
+    if width <= 4 or small.all() or not small.any():
+        return contour_integral(frags.verts, normals[frags.point], frags.inf)
+    out = np.empty(len(frags.counts))
+    for sel, w in ((small, 4), (~small, width)):
+        out[sel] = contour_integral(frags.verts[sel, :w], normals[frags.point[sel]],
+                                    None if frags.inf is None else frags.inf[sel, :w])
+    return out
 
 
 def _chunks(scene: Scene, m: int, budget: int):
@@ -151,8 +174,12 @@ def form_factors(
 def _emitter_mask(scene: Scene) -> np.ndarray:
     """(n,) polygons with any non-zero radiance (the only ones whose fragments irradiance needs)."""
     if scene.linear:
-        return (scene.corner_radiance != 0).any(axis=(1, 2))
-    return (scene.poly_radiance != 0).any(axis=1)
+        emits = (scene.corner_radiance != 0).any(axis=(1, 2))
+    else:
+        emits = (scene.poly_radiance != 0).any(axis=1)
+    group = np.zeros(scene.n_polygons, dtype=bool)
+    np.logical_or.at(group, scene.dup_rep, emits)      # a group is projected if any copy emits
+    return group[scene.dup_rep]
 
 
 def irradiance(
@@ -166,7 +193,12 @@ def irradiance(
     occluders: Occluders | None = None,
     budget: int = DEFAULT_BUDGET,
 ) -> np.ndarray:
-    """Irradiance ``H = Σ_i L_i F_i`` (eq. 3) at every receiver, ``(m, 3)`` float64 (W m^-2 per channel).
+    """Irradiance ``H = ∫ L cosθ dω = π Σ_i L_i F_i`` at every receiver, ``(m, 3)`` float64 (W m^-2).
+
+    This is the paper's eq. 1 with radiance ``L_i`` (W sr^-1 m^-2) on the polygons. Its eq. 2–3 write
+    ``H = Σ L_i F_i``, which holds when ``L_i`` is read as the radiosity ``B_i = π L_i``; with radiance
+    the factor π is needed for eq. 5 (``L = E + ρ/π H``, :func:`radiance`) to give the diffusely
+    reflected radiance ``E + ρ Σ L_i F_i`` — what a path tracer (Cycles) renders.
 
     Polygons emit from their front side only unless the scene is ``double_sided``; polygons with zero
     radiance are only occluders. With per-corner radiance, radiance varies linearly over each triangle and
@@ -191,7 +223,7 @@ def irradiance(
             contrib = ff[:, None] * scene.poly_radiance[frags.poly]
         contrib = np.where(lit[:, None], contrib, 0.0)
         for c in range(3):
-            out[s:e, c] = np.bincount(frags.point, weights=contrib[:, c], minlength=e - s)
+            out[s:e, c] = np.pi * np.bincount(frags.point, weights=contrib[:, c], minlength=e - s)
 
     _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
     return out
@@ -199,6 +231,8 @@ def irradiance(
 
 def radiance(scene: Scene, points, normals, reflectivity, emission=0.0, **kwargs) -> np.ndarray:
     """Outgoing radiance ``L = E + ρ/π H`` (eq. 5) of diffuse receivers, ``(m, 3)`` float64.
+
+    With :func:`irradiance`'s ``H = π Σ L_i F_i`` this is ``E + ρ Σ L_i F_i`` (W sr^-1 m^-2).
 
     ``reflectivity`` ρ and ``emission`` E broadcast to ``(m, 3)`` (scalars, RGB triples or per point).
     Other keyword arguments go to :func:`irradiance`.

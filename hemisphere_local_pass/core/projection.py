@@ -64,6 +64,17 @@ def plane_side(normals, rel_center, center_offset, scale, limit):
     return side
 
 
+def snap_to_receiver(verts: np.ndarray, eps: np.ndarray) -> None:
+    """In a one-sided limit, make vertices within ``eps (C,)`` of P exactly P (in place).
+
+    Such a vertex has no direction of its own: its direction is its first-order part ``-u``. Left at
+    ~1e-22 from P by rounding, it would define edge planes of arbitrary orientation.
+    """
+    at_p = (np.abs(verts) <= eps[:, None, None]).all(axis=2)
+    if at_p.any():
+        verts[at_p] = 0.0
+
+
 @dataclass
 class Candidates:
     """Polygons above the horizon of each receiver, clipped to it (P-local, flat over pairs).
@@ -119,6 +130,7 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
     inf = None
     if limit is not None:
         inf = np.broadcast_to(-limit[cp, None, :], verts.shape).copy()
+        snap_to_receiver(verts, np.where(limit[cp].any(axis=1), eps, -1.0))  # zero rows: exact at P
     if straddle.any():
         s = np.flatnonzero(straddle)
         k = verts.shape[1] - 1

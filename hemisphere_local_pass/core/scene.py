@@ -149,12 +149,40 @@ class Scene:
                                                  self.poly_centers - self.poly_vertices[:, 0])
             d = np.linalg.norm(self.poly_vertices - self.poly_centers[:, None, :], axis=2)
             self.poly_radii = np.where(valid, d, 0.0).max(axis=1)
+            self._find_duplicates(valid)
         else:
+            self.dup_rep = self.dup_same = self.dup_opp = np.zeros(0, dtype=np.int64)
             self.poly_normals = np.zeros((0, 3))
             self.poly_centers = np.zeros((0, 3))
             self.poly_offsets = np.zeros(0)
             self.poly_center_offsets = np.zeros(0)
             self.poly_radii = np.zeros(0)
+
+    def _find_duplicates(self, valid: np.ndarray) -> None:
+        """Identical convex polygons (same vertices, either orientation): coplanar overlapping copies.
+
+        Sets ``dup_rep (n,)`` (the first of each group: the only one projected), and for each
+        representative ``dup_same`` / ``dup_opp`` (n,): the lowest-index copy with the same / the
+        opposite orientation (-1 if none). Seen from a receiver, the copy facing it wins, then the
+        lowest index: the surface is seen once, exactly, however ill-defined a sliver's plane is.
+        """
+        n, k = len(self.poly_counts), self.poly_vertices.shape[1]
+        v = np.where(valid[..., None], self.poly_vertices, np.inf)
+        order = np.lexsort((v[..., 2], v[..., 1], v[..., 0]), axis=-1)              # (n, K) per row
+        key = np.take_along_axis(v, order[..., None], axis=1).reshape(n, 3 * k)
+        key = np.concatenate([key, self.poly_counts[:, None].astype(np.float64)], axis=1)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        self.dup_rep = first[inverse]
+        self.dup_same = np.arange(n)
+        self.dup_opp = np.full(n, -1, dtype=np.int64)
+        dups = np.flatnonzero(self.dup_rep != np.arange(n))
+        for i in dups[::-1]:  # descending, so the lowest index is written last
+            r = self.dup_rep[i]
+            if np.dot(self.poly_normals[i], self.poly_normals[r]) > 0:
+                self.dup_same[r] = min(self.dup_same[r], i)
+            else:
+                self.dup_opp[r] = i if self.dup_opp[r] < 0 else min(self.dup_opp[r], i)
 
     # ------------------------------------------------------------------ construction
     @classmethod

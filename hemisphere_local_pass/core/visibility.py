@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .clipping import classify, pad_repeat_last, split_convex
+from .clipping import classify, split_convex
 from .culling import Occluders
-from .projection import Candidates, receiver_side
+from .projection import Candidates, receiver_side, snap_to_receiver
 from .tolerances import PLANE_EPS
 
 __all__ = ["Fragments", "ShadowVolumes", "occluder_pairs", "shadow_volumes", "subtract_shadow_volumes"]
@@ -107,6 +107,9 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     xs = np.abs(x).max(axis=(1, 2))
     up = ((np.matmul(x, normals[qp][:, :, None])[..., 0] > PLANE_EPS * xs[:, None]) & valid).any(axis=1)
     qp, qo, x, counts, valid, xs = qp[up], qo[up], x[up], counts[up], valid[up], xs[up]
+    if limit is not None:
+        snap_eps = PLANE_EPS * (np.linalg.norm(rel_c[qp, qo], axis=1) + occ.radii[qo])
+        snap_to_receiver(x, np.where(limit[qp].any(axis=1), snap_eps, -1.0))  # zero rows: exact at P
     sigma = side[qp, qo].astype(np.float64)                                     # (Q,)
     q = len(qp)
 
@@ -409,7 +412,15 @@ def subtract_shadow_volumes(frags: Fragments, owner: np.ndarray, ptr: np.ndarray
         scale = np.abs(work.verts).max(axis=(1, 2))
         item = np.arange(n_w)
         pieces = []
-        side_all, sre_all, sinf_all, eps_all = _all_plane_sides(cur_v, cur_i, cur_c, scale, sv, q_of)
+        # sides of the unchanged fragments for every plane at once, on their own width only
+        k0 = work.verts.shape[1]
+        side_all = np.zeros((n_w, j_planes, width), dtype=np.int8)
+        sre_all = np.zeros((n_w, j_planes, width))
+        sinf_all = np.zeros((n_w, j_planes, width)) if dual else None
+        sd, sr, si, eps_all = _all_plane_sides(work.verts, work.inf, cur_c, scale, sv, q_of)
+        side_all[:, :, :k0], sre_all[:, :, :k0] = sd, sr
+        if dual:
+            sinf_all[:, :, :k0] = si
         cut_before = np.zeros(n_w, dtype=bool)
         for j in range(j_planes):
             side, s_re, eps = side_all[item, j], sre_all[item, j], eps_all[item, j]
@@ -499,9 +510,13 @@ class _FragSet:
 
 
 def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
-    """Pad or trim padded polygons ``v (F, K, 3)`` to ``width`` slots (``width >= counts``)."""
+    """Pad or trim padded polygons ``v (F, K, 3)`` to ``width`` slots (``width >= counts``).
+
+    Slot K-1 always holds the last real vertex (padding repeats it), so growing repeats that slot.
+    """
+    del c  # the invariant above makes the counts unnecessary
     if v.shape[1] == width:
         return v
     if v.shape[1] > width:
         return v[:, :width]
-    return pad_repeat_last(v, c, width)
+    return np.concatenate([v, np.repeat(v[:, -1:], width - v.shape[1], axis=1)], axis=1)
