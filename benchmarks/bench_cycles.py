@@ -1,0 +1,285 @@
+"""Cycles against the exact local pass (issue 3): time to reach 1 % and 0.1 % RMS error on a 256² image.
+
+Runs in a Python with the ``bpy`` module (Blender 4.2 LTS as a module)::
+
+    source scripts/envs.sh; source scripts/bpy_envs.sh
+    OMP_NUM_THREADS=1 "$(bpy_python 4.2)" benchmarks/bench_cycles.py [--scenes small] [--size 256]
+
+The Cycles scene is built from ``scenes.cornell_box`` with the first-pass radiance L of every polygon
+(``benchmarks/_common.py``). Its material is the local-pass equivalent: a Diffuse BSDF of colour ρ added
+to an Emission whose colour is E for camera rays and L for all other rays (Light Path "Is Camera Ray"),
+with max bounces 0: a pixel is ``E + ρ Σ_i F_i L_i`` — the exact method's ``E + ρ/π H`` (eq. 5, the
+core's ``radiance``, with ``H = π Σ L F`` its ``irradiance``). No clamping, no denoising, no adaptive
+sampling, black world, Standard view transform, Gaussian pixel filter of width 0.01 (samples at the pixel
+centres, where the exact image is evaluated), 2 CPU threads. The front wall closes the box but is
+invisible to camera rays.
+
+Three light-sampling modes: Blender's defaults (light tree on), light tree off, and BSDF sampling only
+(``emission_sampling = 'NONE'``). For each samples-per-pixel setting it prints the render time and the
+RMS, max and mean (bias) error of the radiance image against the exact image (luminance, relative to the
+mean), and interpolates (log-log) the time to reach 1 % and 0.1 % RMS error. Results go to
+``docs/bench_cycles.md`` and ``docs/bench_cycles.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import CACHE, ROOT, log, luminance, machine, solved_radiance  # noqa: E402
+
+from hemisphere_local_pass.core import radiance  # noqa: E402
+from hemisphere_local_pass.core.raycast import cast_rays  # noqa: E402
+from hemisphere_local_pass.scenes import PAPER_SETTINGS, camera_rays, cornell_box  # noqa: E402
+
+DOCS = ROOT / "docs"
+
+
+def exact_image(key, box, lum, size):
+    """``(size, size, 3)`` exact radiance image ``E + ρ/π H`` (eq. 5; top row first) and its seconds; cached."""
+    CACHE.mkdir(parents=True, exist_ok=True)
+    path = CACHE / f"exact_image_{key}_{box.n_polygons}_{size}.npz"
+    if path.exists():
+        z = np.load(path)
+        return z["image"], float(z["seconds"])
+    scene = box.scene(radiance=lum)
+    o, d = camera_rays(box, size)
+    t = time.perf_counter()
+    h = cast_rays(scene, o, d)
+    src = h.source
+    pts, nrm = h.point, scene.poly_normals[h.polygon]
+    img = np.zeros((len(o), 3))
+    step = 1024
+    for s in range(0, len(o), step):
+        sl = slice(s, s + step)
+        # eq. 5: E + ρ/π H (H = π Σ F L, so E + ρ Σ F L: what a diffuse BSDF of albedo ρ reflects)
+        img[sl] = radiance(scene, pts[sl], nrm[sl], box.reflectivity[src[sl]], box.emission[src[sl]])
+        log(f"[exact {key}] {min(s + step, len(o))}/{len(o)} points, {time.perf_counter() - t:.0f} s")
+    seconds = time.perf_counter() - t
+    np.savez(path, image=img.reshape(size, size, 3), seconds=seconds)
+    return img.reshape(size, size, 3), seconds
+
+
+def build_blender_scene(box, lum, size, threads):
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    front = np.array([nm == "front wall" for nm in box.names])
+    mat = bpy.data.materials.new("local_pass")
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    add = nt.nodes.new("ShaderNodeAddShader")
+    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    emission = nt.nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 1.0
+    mix = nt.nodes.new("ShaderNodeMix")
+    mix.data_type = "RGBA"
+    path = nt.nodes.new("ShaderNodeLightPath")
+    attrs = {}
+    for name in ("rho", "L", "E"):
+        a = nt.nodes.new("ShaderNodeAttribute")
+        a.attribute_type = "GEOMETRY"
+        a.attribute_name = name
+        attrs[name] = a
+    nt.links.new(attrs["rho"].outputs["Color"], diffuse.inputs["Color"])
+    nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Factor"])
+    nt.links.new(attrs["L"].outputs["Color"], mix.inputs["A"])  # other rays: first-pass radiance L
+    nt.links.new(attrs["E"].outputs["Color"], mix.inputs["B"])  # camera rays: emission E
+    nt.links.new(mix.outputs["Result"], emission.inputs["Color"])
+    nt.links.new(diffuse.outputs["BSDF"], add.inputs[0])
+    nt.links.new(emission.outputs["Emission"], add.inputs[1])
+    nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+
+    for label, sel in (("room", ~front), ("front_wall", front)):
+        idx = np.flatnonzero(sel)
+        polys = [box.polygons[i] for i in idx]
+        mesh = bpy.data.meshes.new(label)
+        mesh.from_pydata([tuple(v) for v in box.vertices], [], polys)
+        mesh.update()
+        for name, values in (("rho", box.reflectivity[idx]), ("L", lum[idx]), ("E", box.emission[idx])):
+            attr = mesh.attributes.new(name, "FLOAT_COLOR", "FACE")
+            rgba = np.concatenate([values, np.ones((len(idx), 1))], axis=1).astype(np.float32)
+            attr.data.foreach_set("color", rgba.ravel())
+        mesh.materials.append(mat)
+        obj = bpy.data.objects.new(label, mesh)
+        scene.collection.objects.link(obj)
+        if label == "front_wall":
+            obj.visible_camera = False  # closes the box for light, the camera looks through it
+
+    cam_data = bpy.data.cameras.new("camera")
+    cam_data.sensor_fit = "HORIZONTAL"
+    cam_data.angle = float(box.camera["fov"])
+    cam_data.clip_start = 1e-3 * box.size
+    cam_data.clip_end = 100.0 * box.size
+    cam = bpy.data.objects.new("camera", cam_data)
+    cam.location = tuple(box.camera["location"])
+    cam.rotation_euler = (np.pi / 2, 0.0, 0.0)  # local -Z (view) -> +Y, local +Y (up) -> +Z
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+
+    world = bpy.data.worlds.new("black")
+    world.use_nodes = True
+    world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0, 0, 0, 1)
+    scene.world = world
+
+    r = scene.render
+    r.engine = "CYCLES"
+    r.resolution_x = r.resolution_y = size
+    r.resolution_percentage = 100
+    r.threads_mode = "FIXED"
+    r.threads = threads
+    r.film_transparent = False
+    r.image_settings.file_format = "OPEN_EXR"
+    r.image_settings.color_depth = "32"
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+    c = scene.cycles
+    c.device = "CPU"
+    c.use_adaptive_sampling = False
+    c.use_denoising = False
+    c.max_bounces = 0
+    c.diffuse_bounces = c.glossy_bounces = c.transmission_bounces = c.volume_bounces = 0
+    c.transparent_max_bounces = 0
+    c.sample_clamp_direct = 0.0
+    c.sample_clamp_indirect = 0.0
+    c.pixel_filter_type = "GAUSSIAN"
+    c.filter_width = 0.01
+    c.seed = 0
+    return scene, mat
+
+
+def render(scene, mat, spp, mode, path):
+    import bpy
+
+    c = scene.cycles
+    c.samples = int(spp)
+    c.use_light_tree = mode != "light tree off"
+    mat.cycles.emission_sampling = "NONE" if mode == "BSDF sampling only" else "AUTO"
+    scene.render.filepath = str(path)
+    t = time.perf_counter()
+    bpy.ops.render.render(write_still=True)
+    seconds = time.perf_counter() - t
+    img = bpy.data.images.load(str(path), check_existing=False)
+    px = np.empty(len(img.pixels), dtype=np.float32)
+    img.pixels.foreach_get(px)
+    w, h = img.size
+    bpy.data.images.remove(img)
+    rgb = px.reshape(h, w, 4)[::-1, :, :3].astype(np.float64)  # Blender's rows run bottom to top
+    return rgb, seconds
+
+
+def time_to(errors, seconds, target):
+    """Log-log interpolated render time at which the RMS error reaches ``target`` (None if not reached)."""
+    e, t = np.asarray(errors), np.asarray(seconds)
+    for i in range(1, len(e)):
+        if e[i] <= target < e[i - 1]:
+            f = (np.log(target) - np.log(e[i - 1])) / (np.log(e[i]) - np.log(e[i - 1]))
+            return float(np.exp(np.log(t[i - 1]) + f * (np.log(t[i]) - np.log(t[i - 1]))))
+    if len(e) and e[0] <= target:
+        return float(t[0])
+    return None
+
+
+def extrapolate(errors, seconds, target):
+    """Time to reach ``target`` from a power-law fit ``rms = a t^b`` to the last three settings, with b."""
+    e, t = np.log(np.asarray(errors[-3:])), np.log(np.asarray(seconds[-3:]))
+    if len(e) < 2:
+        return None, None
+    b, a = np.polyfit(t, e, 1)
+    if b >= 0:
+        return None, float(b)
+    return float(np.exp((np.log(target) - a) / b)), float(b)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", default="small")
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--spp", default="1,4,16,64,256,1024,4096")
+    ap.add_argument("--modes", default="default,light tree off,BSDF sampling only")
+    ap.add_argument("--max-seconds", type=float, default=600.0, help="stop a mode once a render takes longer")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", default=str(DOCS / "bench_cycles"))
+    args = ap.parse_args(argv)
+    import bpy
+
+    spps = [int(s) for s in args.spp.split(",")]
+    report = {"machine": machine(), "blender": bpy.app.version_string, "scenes": []}
+    md = [f"# Cycles against the exact local pass\n\nMachine: {machine()}; Blender {bpy.app.version_string} "
+          f"(bpy module), {args.threads} render threads\n",
+          f"Command: `OMP_NUM_THREADS=1 \"$(bpy_python 4.2)\" benchmarks/bench_cycles.py --scenes {args.scenes} "
+          f"--size {args.size} --spp {args.spp}`\n",
+          "Errors: radiance image (E + ρH/π) against the exact image, luminance, relative to its mean; "
+          "bias = mean error. Times are wall-clock render times (scene sync included).\n"]
+    for key in args.scenes.split(","):
+        box = cornell_box(**PAPER_SETTINGS[key])
+        lum = solved_radiance(key, box)
+        exact, t_exact = exact_image(key, box, lum, args.size)
+        y_exact = luminance(exact)
+        mean = float(y_exact.mean())
+        log(f"[{key}] exact image {args.size}² in {t_exact:.1f} s (cached or computed)")
+        scene, mat = build_blender_scene(box, lum, args.size, args.threads)
+        entry = {"scene": key, "polygons": box.n_polygons, "exact_seconds": t_exact, "modes": {}}
+        md.append(f"## {box.n_polygons} polygons, {args.size}×{args.size}\n")
+        md.append(f"Exact image: {t_exact:.1f} s ({t_exact / args.size**2 * 1e3:.3f} ms per pixel).\n")
+        md.append("| mode | spp | seconds | RMS error | max error | bias |")
+        md.append("|---|---|---|---|---|---|")
+        with tempfile.TemporaryDirectory() as tmp:
+            for mode in args.modes.split(","):
+                rows = []
+                for spp in spps:
+                    img, sec = render(scene, mat, spp, mode, Path(tmp) / f"r_{spp}.exr")
+                    d = luminance(img) - y_exact
+                    row = {"spp": spp, "seconds": sec, "rms": float(np.sqrt(np.mean(d * d)) / mean),
+                           "max": float(np.abs(d).max() / mean), "bias": float(d.mean() / mean)}
+                    rows.append(row)
+                    log(f"[{key}] {mode} {spp} spp: {sec:.1f} s, RMS {row['rms']:.3e}, bias {row['bias']:+.2e}")
+                    md.append(f"| {mode} | {spp} | {sec:.1f} | {row['rms']:.3e} | {row['max']:.3e} | "
+                              f"{row['bias']:+.2e} |")
+                    if sec > args.max_seconds:
+                        break
+                t1 = time_to([r["rms"] for r in rows], [r["seconds"] for r in rows], 0.01)
+                t01 = time_to([r["rms"] for r in rows], [r["seconds"] for r in rows], 0.001)
+                errs, secs = [r["rms"] for r in rows], [r["seconds"] for r in rows]
+                x1, slope = extrapolate(errs, secs, 0.01)
+                x01, _ = extrapolate(errs, secs, 0.001)
+                entry["modes"][mode] = {"rows": rows, "seconds_to_1pct": t1, "seconds_to_0.1pct": t01,
+                                        "fit_slope": slope, "extrapolated_1pct": x1, "extrapolated_0.1pct": x01}
+        md.append("")
+        for mode, m in entry["modes"].items():
+            t1, t01 = m["seconds_to_1pct"], m["seconds_to_0.1pct"]
+
+            def fmt(measured, extrapolated):
+                if measured is not None:
+                    return f"{measured:.1f} s"
+                return "not reached" if extrapolated is None else f"~{extrapolated:.0f} s (extrapolated)"
+
+            slope = "?" if m["fit_slope"] is None else f"{m['fit_slope']:.2f}"
+            md.append(f"* {mode}: 1 % RMS in {fmt(t1, m['extrapolated_1pct'])}, 0.1 % RMS in "
+                      f"{fmt(t01, m['extrapolated_0.1pct'])}; RMS ∝ time^{slope} over the last settings "
+                      f"(exact image: {t_exact:.1f} s).")
+        md.append("")
+        report["scenes"].append(entry)
+    text = "\n".join(md)
+    print(text)
+    with open(args.out + ".md", "w", encoding="utf-8") as fh:
+        fh.write(text + "\n")
+    with open(args.out + ".json", "w", encoding="utf-8") as fh:
+        json.dump(report, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,81 @@
+"""Operators: the UI entry point of the local pass (one short call into ``job.run_local_pass``)."""
+
+import time
+
+import bpy
+
+from .props import HLP_PG_settings
+
+__all__ = ["HLP_OT_render_local_pass", "job_arguments"]
+
+
+def job_arguments(scene, settings: HLP_PG_settings) -> dict:
+    """Keyword arguments of ``job.run_local_pass`` taken from the scene settings."""
+    output = bpy.path.abspath(settings.output_path) if settings.output_path else None
+    return {
+        "scene": scene,
+        "mode": settings.mode.lower(),
+        "attribute": settings.attribute,
+        "reflectivity_attribute": settings.reflectivity_attribute,
+        "emission_attribute": settings.emission_attribute,
+        "missing": settings.missing_attribute.lower(),
+        "samples": settings.samples,
+        "output": output if settings.mode == 'PIXELS' else None,
+        "double_sided": settings.double_sided,
+    }
+
+
+class _Progress:
+    """``progress(done, total)`` for the job: the window manager's progress cursor when a window exists."""
+
+    def __init__(self, context):
+        self.wm = context.window_manager if context.window is not None else None
+        self.started = False
+
+    def __call__(self, done, total):
+        if self.wm is None or total <= 0:
+            return
+        if not self.started:
+            self.wm.progress_begin(0, total)
+            self.started = True
+        self.wm.progress_update(done)
+
+    def end(self):
+        if self.started:
+            self.wm.progress_end()
+            self.started = False
+
+
+class HLP_OT_render_local_pass(bpy.types.Operator):
+    """Compute the exact local pass (radiance and irradiance) from the radiosity attribute"""
+
+    bl_idname = "hlp.render_local_pass"
+    bl_label = "Render Local Pass"
+    bl_options = {'REGISTER'}
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and hasattr(context.scene, "hlp_settings")
+
+    def execute(self, context):
+        from ..core import Cancelled
+        from . import job
+
+        scene = context.scene
+        kwargs = job_arguments(scene, scene.hlp_settings)
+        progress = _Progress(context)
+        start = time.perf_counter()
+        try:
+            result = job.run_local_pass(progress=progress, **kwargs)
+        except Cancelled:
+            self.report({'WARNING'}, "Local pass cancelled")
+            return {'CANCELLED'}
+        except (ValueError, OSError, RuntimeError) as ex:
+            self.report({'ERROR'}, str(ex))
+            return {'CANCELLED'}
+        finally:
+            progress.end()
+        seconds = time.perf_counter() - start
+        summary = getattr(result, "summary", None)
+        self.report({'INFO'}, summary() if callable(summary) else f"Local pass done in {seconds:.1f} s")
+        return {'FINISHED'}

@@ -1,0 +1,73 @@
+"""Scene settings of the local pass: ``bpy.types.Scene.hlp_settings`` (:class:`HLP_PG_settings`).
+
+The panel (``panels.py``) shows them, the operator (``operators.py``) passes them to
+``job.run_local_pass``; the command line (``blender -c hemisphere_local_pass render``) has the same
+options as flags.
+"""
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+
+MODE_ITEMS = (
+    ('PIXELS', "Pixels", "Render the active camera's view to an image and a multi-channel OpenEXR file"),
+    ('VERTICES', "Vertices", "Write hlp_radiance and hlp_irradiance colour attributes on the selected meshes"),
+)
+
+MISSING_ITEMS = (
+    ('ERROR', "Error", "Stop with an error naming the first object without the radiosity attribute"),
+    ('BLACK', "Black Occluder", "Treat objects without the radiosity attribute as black occluders (counted)"),
+)
+
+
+class HLP_PG_settings(bpy.types.PropertyGroup):
+    """Settings of the exact local pass for this scene"""
+
+    attribute: StringProperty(
+        name="Radiosity Attribute",
+        description=(
+            "Mesh attribute holding the first pass's radiance (linear RGB; FACE domain: constant per "
+            "polygon, POINT or CORNER domain: linearly varying)"
+        ),
+        default="radiosity",
+    )
+    reflectivity_attribute: StringProperty(
+        name="Reflectivity Attribute",
+        description="Mesh attribute holding the receiver's reflectivity; else the material's base colour",
+        default="reflectivity",
+    )
+    emission_attribute: StringProperty(
+        name="Emission Attribute",
+        description="Mesh attribute holding the receiver's emission; else the material's emission",
+        default="emission",
+    )
+    mode: EnumProperty(
+        name="Mode",
+        description="Where the local pass is evaluated",
+        items=MODE_ITEMS,
+        default='PIXELS',
+    )
+    missing_attribute: EnumProperty(
+        name="Missing Attribute",
+        description="What to do with a mesh that has no radiosity attribute",
+        items=MISSING_ITEMS,
+        default='ERROR',
+    )
+    samples: IntProperty(
+        name="Samples",
+        description="Supersampling: k×k camera rays per pixel (pixels mode)",
+        default=1,
+        min=1,
+        soft_max=8,
+        max=64,
+    )
+    output_path: StringProperty(
+        name="Output",
+        description="Multi-channel OpenEXR file written in pixels mode (// is relative to the .blend file)",
+        default="//local_pass.exr",
+        subtype='FILE_PATH',
+    )
+    double_sided: BoolProperty(
+        name="Double Sided",
+        description="Polygons emit their radiosity from both sides (else only from the front, the normal side)",
+        default=False,
+    )

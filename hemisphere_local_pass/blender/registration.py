@@ -1,0 +1,42 @@
+"""Registration of the Blender layer: property group, operator, panel and the CLI command.
+
+``register()`` registers ``classes`` in order, attaches ``Scene.hlp_settings`` and, where Blender has
+it (4.2+), ``bpy.utils.register_cli_command``; ``unregister()`` undoes all of it in reverse. Both are
+safe to call repeatedly (register/unregister/register/unregister).
+"""
+
+import bpy
+
+from . import cli, operators, panels, props
+
+__all__ = ["classes", "register", "unregister"]
+
+classes = (
+    props.HLP_PG_settings,
+    operators.HLP_OT_render_local_pass,
+    panels.HLP_PT_local_pass,
+)
+
+#: Handle returned by ``bpy.utils.register_cli_command`` (None when not registered / Blender < 4.2).
+_cli_handle = None
+
+
+def register():
+    global _cli_handle
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.hlp_settings = bpy.props.PointerProperty(type=props.HLP_PG_settings)
+    if hasattr(bpy.utils, "register_cli_command") and _cli_handle is None:
+        _cli_handle = bpy.utils.register_cli_command(cli.COMMAND, cli.handler)
+
+
+def unregister():
+    global _cli_handle
+    if _cli_handle is not None:
+        bpy.utils.unregister_cli_command(_cli_handle)
+        _cli_handle = None
+    if hasattr(bpy.types.Scene, "hlp_settings"):
+        del bpy.types.Scene.hlp_settings
+    for cls in reversed(classes):
+        if getattr(cls, "is_registered", True):
+            bpy.utils.unregister_class(cls)

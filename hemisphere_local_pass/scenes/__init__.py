@@ -1,0 +1,7 @@
+"""Procedural test and sample scenes (pure numpy) and a simple radiosity first pass."""
+
+from .cornell_box import PAPER_SETTINGS, CornellBox, camera_rays, cornell_box
+from .radiosity import centroid_form_factors, gathered_radiance, radiosity
+
+__all__ = ["PAPER_SETTINGS", "CornellBox", "camera_rays", "centroid_form_factors", "cornell_box",
+           "gathered_radiance", "radiosity"]

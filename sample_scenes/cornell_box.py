@@ -1,0 +1,170 @@
+"""Build the sample Cornell box as a Blender scene (and optionally save it as a .blend file).
+
+Run as a script::
+
+    blender -b --python sample_scenes/cornell_box.py -- out.blend [--subdivisions 4] [--resolution 64]
+        [--domain FACE|POINT]
+    python sample_scenes/cornell_box.py out.blend ...        # in a venv with the bpy module
+
+or import it (bpy module): ``build(subdivisions=4, resolution=64)`` builds into the current scene.
+
+The box comes from ``hemisphere_local_pass.scenes.cornell_box`` (closed; the classic camera stands
+outside, in front of the front wall, and its near clip plane lies just inside that wall). One mesh
+object per part (floor, ceiling, light, walls, blocks), each with a Principled BSDF material (base
+colour = reflectivity rho, emission colour x strength = E for the light) and a ``radiosity``
+FLOAT_COLOR attribute: the first pass's radiance per polygon from
+``hemisphere_local_pass.scenes.radiosity`` (FACE domain), or with ``domain="POINT"`` the mean of the
+adjacent polygons' values at each vertex (linearly varying radiance). If the radiosity solver is not
+available the radiosity is the emission alone (direct light only), and the script says so.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import numpy as np
+
+_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _import_package():
+    try:
+        import hemisphere_local_pass  # noqa: F401
+    except ImportError:
+        sys.path.insert(0, _ROOT)
+
+
+def first_pass(box):
+    """(n, 3) per-polygon radiance of the box's radiosity solution (or the emission, with a notice)."""
+    _import_package()
+    try:
+        from hemisphere_local_pass.scenes.radiosity import radiosity
+
+        values = radiosity(box.vertices, box.polygons, box.reflectivity, box.emission)
+        return np.asarray(values, dtype=np.float64).reshape(box.n_polygons, 3), "radiosity"
+    except (ImportError, NotImplementedError) as exc:
+        print(f"cornell_box: radiosity solver unavailable ({exc!s}); radiosity = emission only", file=sys.stderr)
+        return np.asarray(box.emission, dtype=np.float64), "emission"
+
+
+def _material(bpy, name, rho, emit):
+    mat = bpy.data.materials.new(name)
+    if bpy.app.version < (5, 0, 0):  # 5.0+: always node-based, the flag is deprecated
+        mat.use_nodes = True
+    mat.diffuse_color = (float(rho[0]), float(rho[1]), float(rho[2]), 1.0)
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Base Color"].default_value = (float(rho[0]), float(rho[1]), float(rho[2]), 1.0)
+    strength = float(max(emit)) if max(emit) > 0 else 0.0
+    col = bsdf.inputs.get("Emission Color") or bsdf.inputs.get("Emission")
+    if strength > 0:
+        col.default_value = (emit[0] / strength, emit[1] / strength, emit[2] / strength, 1.0)
+        bsdf.inputs["Emission Strength"].default_value = strength
+    else:
+        bsdf.inputs["Emission Strength"].default_value = 0.0
+    return mat
+
+
+def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", reset: bool = True,
+          radiosity=None, size: float = 1.0):
+    """Build the Cornell box into the current Blender session; returns ``(scene, box, radiosity)``.
+
+    Args:
+        subdivisions: grid intervals per room edge (4 -> 172 polygons).
+        resolution: square image size in pixels.
+        domain: "FACE" (constant radiosity per polygon) or "POINT" (per-vertex means, linear).
+        reset: start from an empty factory scene.
+        radiosity: (n, 3) per-polygon values to store instead of the first pass's solution.
+    """
+    import bpy
+
+    _import_package()
+    from hemisphere_local_pass.scenes.cornell_box import cornell_box
+
+    if reset:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    box = cornell_box(subdivisions, size=size)
+    values = first_pass(box)[0] if radiosity is None else np.asarray(radiosity, dtype=np.float64)
+    loops, start, total = box.loops()
+    names = np.array(box.names)
+    for part in dict.fromkeys(box.names):  # one object per part, in order of appearance
+        sel = np.flatnonzero(names == part)
+        corner_idx = np.concatenate([np.arange(start[i], start[i] + total[i]) for i in sel])
+        used, local = np.unique(loops[corner_idx], return_inverse=True)
+        verts = box.vertices[used]
+        polys, c = [], 0
+        for i in sel:
+            polys.append(local[c:c + total[i]].tolist())
+            c += total[i]
+        mesh = bpy.data.meshes.new(part)
+        mesh.from_pydata(verts.tolist(), [], polys)
+        mesh.update()
+        val = values[sel]
+        if domain == "FACE":
+            attr = mesh.attributes.new("radiosity", "FLOAT_COLOR", "FACE")
+            data = val
+        elif domain == "POINT":
+            attr = mesh.attributes.new("radiosity", "FLOAT_COLOR", "POINT")
+            acc = np.zeros((len(used), 3))
+            cnt = np.zeros(len(used))
+            lv = np.concatenate([np.array(p) for p in polys])
+            np.add.at(acc, lv, np.repeat(val, [len(p) for p in polys], axis=0))
+            np.add.at(cnt, lv, 1.0)
+            data = acc / cnt[:, None]
+        else:
+            raise ValueError(f"domain must be FACE or POINT, got {domain!r}")
+        rgba = np.concatenate([data, np.ones((len(data), 1))], axis=1).astype(np.float32)
+        attr.data.foreach_set("color", rgba.reshape(-1))
+        ob = bpy.data.objects.new(part.title().replace(" ", ""), mesh)
+        mesh.materials.append(_material(bpy, part, box.reflectivity[sel[0]], box.emission[sel[0]]))
+        scene.collection.objects.link(ob)
+    cam_data = bpy.data.cameras.new("Camera")
+    cam_data.sensor_fit = "AUTO"
+    cam_data.angle = float(box.camera["fov"])
+    # the classic camera stands outside the closed box, in front of the front wall (the plane y = 0):
+    # the near clip plane just inside that wall lets it look through it, in our rays and in Cycles
+    outside = max(0.0, -float(box.camera["location"][1]))
+    cam_data.clip_start = outside + 1e-5 * size if outside > 0 else 1e-4 * size
+    cam_data.clip_end = 100.0 * size
+    cam = bpy.data.objects.new("Camera", cam_data)
+    cam.location = tuple(float(v) for v in box.camera["location"])
+    cam.rotation_euler = (math.pi / 2, 0.0, 0.0)  # local -Z (view) -> +Y, local +Y (up) -> +Z
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    scene.render.resolution_x = scene.render.resolution_y = int(resolution)
+    scene.render.resolution_percentage = 100
+    if hasattr(scene, "world") and scene.world is None:
+        scene.world = bpy.data.worlds.new("World")
+    scene.world.color = (0.0, 0.0, 0.0)  # black world (a closed box: nothing sees it anyway)
+    if scene.world.node_tree is not None:
+        for node in scene.world.node_tree.nodes:
+            if node.type == "BACKGROUND":
+                node.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
+    bpy.context.view_layer.update()
+    return scene, box, values
+
+
+def main(argv):
+    import argparse
+
+    import bpy
+
+    parser = argparse.ArgumentParser(prog="cornell_box.py", description="Build the sample Cornell box .blend")
+    parser.add_argument("output", help=".blend file to write")
+    parser.add_argument("--subdivisions", type=int, default=4)
+    parser.add_argument("--resolution", type=int, default=64)
+    parser.add_argument("--domain", choices=("FACE", "POINT"), default="FACE")
+    args = parser.parse_args(argv)
+    build(args.subdivisions, resolution=args.resolution, domain=args.domain)
+    out = os.path.abspath(args.output)
+    os.makedirs(os.path.dirname(out), exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=out)
+    print(f"cornell_box: wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    _argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]
+    sys.exit(main(_argv))

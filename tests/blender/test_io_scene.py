@@ -1,0 +1,216 @@
+"""Scene extraction: attributes, domains, materials, visibility, instances, modifiers, bad input."""
+
+import importlib
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+
+@pytest.fixture
+def hlp(extension, scene):
+    """The installed extension's blender layer modules, on a fresh empty scene."""
+    base = extension.__name__ + ".blender."
+    return {name: importlib.import_module(base + name) for name in ("scene_export", "job", "camera")}
+
+
+def quad_mesh(name, z=0.0, size=1.0, flip=False, values=None, domain="FACE", dtype="FLOAT_COLOR", attr="radiosity"):
+    """Two quads side by side in the plane z (normal +z, or -z when flipped) with an attribute."""
+    s = size
+    verts = [(0, 0, z), (s, 0, z), (s, s, z), (0, s, z), (2 * s, 0, z), (2 * s, s, z)]
+    faces = [(0, 1, 2, 3), (1, 4, 5, 2)]
+    if flip:
+        faces = [tuple(reversed(f)) for f in faces]
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(verts, [], faces)
+    me.update()
+    if values is not None:
+        a = me.attributes.new(attr, dtype, domain)
+        n = len(a.data)
+        vals = np.broadcast_to(np.asarray(values, dtype=np.float64), (n, 3))
+        if dtype == "FLOAT_VECTOR":
+            a.data.foreach_set("vector", vals.astype(np.float32).reshape(-1))
+        elif dtype == "FLOAT":
+            a.data.foreach_set("value", vals[:, 0].astype(np.float32))
+        else:
+            rgba = np.concatenate([vals, np.ones((n, 1))], axis=1).astype(np.float32)
+            a.data.foreach_set("color", rgba.reshape(-1))
+    ob = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def export(hlp, **kw):
+    bpy.context.view_layer.update()
+    return hlp["scene_export"].export_scene(bpy.context.scene, **kw)
+
+
+def test_face_domain_world_space_and_names(hlp):
+    ob = quad_mesh("Floor", values=[(1.0, 0.5, 0.25), (2.0, 2.0, 2.0)])
+    ob.location = (10.0, 0.0, 1.0)
+    ex = export(hlp)
+    sc = ex.scene
+    assert ex.objects == ["Floor"] and not ex.linear
+    assert sc.n_input == 2
+    np.testing.assert_allclose(sc.poly_radiance, [(1.0, 0.5, 0.25), (2.0, 2.0, 2.0)], rtol=1e-7)
+    assert sc.poly_vertices[..., 0].min() == pytest.approx(10.0) and sc.poly_vertices[..., 2].max() == 1.0
+    np.testing.assert_allclose(sc.poly_normals, [(0, 0, 1), (0, 0, 1)], atol=1e-12)
+    assert ex.polygon_name(1) == "Floor.polygon 1"
+    assert sc.describe(1) == "polygon 1 (Floor.polygon 1)"
+    np.testing.assert_allclose(ex.reflectivity, 0.8)  # no material: documented default
+    np.testing.assert_allclose(ex.emission, 0.0)
+
+
+@pytest.mark.parametrize("domain", ["POINT", "CORNER"])
+def test_point_and_corner_domains_are_linear(hlp, domain):
+    ob = quad_mesh("Floor", values=[(0.5, 0.5, 0.5)], domain=domain)
+    a = ob.data.attributes["radiosity"]
+    n = len(a.data)
+    vals = np.linspace(0, 1, n * 4, dtype=np.float32)
+    a.data.foreach_set("color", vals)
+    ex = export(hlp)
+    assert ex.linear and ex.scene.linear
+    rgba = vals.reshape(n, 4)[:, :3]
+    loops = np.array([v for p in ob.data.polygons for v in p.vertices])
+    corner = rgba[loops] if domain == "POINT" else rgba
+    # the first triangle of polygon 0 (fan from its first corner) carries corners 0, 1, 2
+    np.testing.assert_allclose(ex.scene.corner_radiance[0], corner[[0, 1, 2]], rtol=1e-7)
+
+
+def test_byte_color_is_read_as_linear_and_vectors_accepted(hlp):
+    ob = quad_mesh("A", values=[(0.5, 0.5, 0.5)], dtype="BYTE_COLOR")
+    quad_mesh("B", z=1.0, values=[(3.0, 4.0, 5.0)], dtype="FLOAT_VECTOR")
+    a = ob.data.attributes["radiosity"]
+    srgb = np.empty(8, dtype=np.float32)
+    a.data.foreach_get("color_srgb", srgb)
+    ex = export(hlp)
+    # 0.5 linear is stored as the sRGB byte 188 (0.737); reading .color gives back ~0.5, not 0.737
+    assert srgb[0] == pytest.approx(188 / 255, abs=1e-6)
+    np.testing.assert_allclose(ex.scene.poly_radiance[:2], 0.5, atol=3e-3)
+    np.testing.assert_allclose(ex.scene.poly_radiance[2:], [(3, 4, 5)] * 2)
+
+
+def test_material_and_attribute_reflectivity_emission(hlp):
+    ob = quad_mesh("Lamp", values=[(1, 1, 1)])
+    mat = bpy.data.materials.new("M")
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = True
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    bsdf.inputs["Base Color"].default_value = (0.2, 0.3, 0.4, 1.0)
+    col = bsdf.inputs.get("Emission Color") or bsdf.inputs.get("Emission")
+    col.default_value = (1.0, 0.5, 0.25, 1.0)
+    bsdf.inputs["Emission Strength"].default_value = 4.0
+    ob.data.materials.append(mat)
+    other = quad_mesh("Painted", z=2.0, values=[(0, 0, 0)])
+    a = other.data.attributes.new("reflectivity", "FLOAT", "FACE")
+    a.data.foreach_set("value", np.array([0.1, 0.9], dtype=np.float32))
+    e = other.data.attributes.new("emission", "FLOAT_COLOR", "POINT")
+    e.data.foreach_set("color", np.tile(np.array([2, 0, 0, 1], dtype=np.float32), 6))
+    ex = export(hlp)
+    np.testing.assert_allclose(ex.reflectivity[:2], [(0.2, 0.3, 0.4)] * 2, rtol=1e-6)
+    np.testing.assert_allclose(ex.emission[:2], [(4.0, 2.0, 1.0)] * 2, rtol=1e-6)
+    np.testing.assert_allclose(ex.reflectivity[2:], [(0.1,) * 3, (0.9,) * 3], rtol=1e-6)
+    np.testing.assert_allclose(ex.emission[2:], [(2, 0, 0)] * 2)
+
+
+def test_missing_attribute_error_or_black_occluder(hlp):
+    quad_mesh("Lit", values=[(1, 1, 1)])
+    quad_mesh("Bare", z=1.0)
+    with pytest.raises(ValueError, match="object 'Bare' has no attribute 'radiosity'"):
+        export(hlp)
+    ex = export(hlp, missing="black")
+    assert ex.black_occluders == ["Bare"]
+    np.testing.assert_allclose(ex.scene.poly_radiance[2:], 0.0)
+    assert ex.scene.n_input == 4  # still occludes
+
+
+@pytest.mark.parametrize("dtype,domain,match", [
+    ("INT", "FACE", "data type INT"),
+    ("FLOAT", "FACE", "data type FLOAT"),
+    ("FLOAT_COLOR", "EDGE", "EDGE domain"),
+])
+def test_wrong_type_or_domain(hlp, dtype, domain, match):
+    ob = quad_mesh("Wall")
+    ob.data.attributes.new("radiosity", dtype, domain)
+    with pytest.raises(ValueError, match=f"object 'Wall': attribute 'radiosity'.*{match}"):
+        export(hlp)
+
+
+def test_nan_names_object_and_polygon(hlp):
+    ob = quad_mesh("Wall", values=[(1, 1, 1), (np.nan, 0, 0)])
+    with pytest.raises(ValueError, match="object 'Wall': attribute 'radiosity' has a non-finite value .* polygon 1"):
+        export(hlp)
+    ob.data.attributes.remove(ob.data.attributes["radiosity"])
+    a = ob.data.attributes.new("radiosity", "FLOAT_COLOR", "POINT")
+    vals = np.ones((6, 4), dtype=np.float32)
+    vals[5, 1] = np.inf  # vertex 5 is used by polygon 1 only
+    a.data.foreach_set("color", vals.reshape(-1))
+    with pytest.raises(ValueError, match="non-finite value .* polygon 1"):
+        export(hlp)
+
+
+def test_empty_scene(hlp):
+    with pytest.raises(ValueError, match="no render-visible geometry"):
+        export(hlp)
+    bpy.context.scene.collection.objects.link(bpy.data.objects.new("Empty", None))
+    light = bpy.data.objects.new("Light", bpy.data.lights.new("L", "POINT"))
+    bpy.context.scene.collection.objects.link(light)
+    with pytest.raises(ValueError, match="no render-visible geometry"):
+        export(hlp)
+
+
+def test_non_mesh_objects(hlp):
+    quad_mesh("Floor", values=[(1, 1, 1)])
+    text = bpy.data.objects.new("Label", bpy.data.curves.new("T", "FONT"))
+    text.data.body = "Hi"
+    text.location = (0, 0, 3)
+    bpy.context.scene.collection.objects.link(text)
+    for kind in ("CAMERA", "LIGHT", "EMPTY"):
+        data = {"CAMERA": bpy.data.cameras.new("c"), "LIGHT": bpy.data.lights.new("l", "SUN"), "EMPTY": None}[kind]
+        bpy.context.scene.collection.objects.link(bpy.data.objects.new(kind.title(), data))
+    with pytest.raises(ValueError, match="object 'Label' has no attribute 'radiosity'"):
+        export(hlp)
+    ex = export(hlp, missing="black")
+    assert ex.objects == ["Floor", "Label"]  # the text once (not also as its mesh instance); others ignored
+    assert ex.black_occluders == ["Label"]
+    assert ex.scene.n_input > 2
+    assert np.all(ex.scene.poly_vertices[ex.scene.poly_source >= 2][..., 2] == pytest.approx(3.0))
+
+
+def test_visibility_modifiers_instances_and_mirroring(hlp):
+    base = quad_mesh("Base", values=[(1, 1, 1)])
+    hidden = quad_mesh("HiddenFromRender", z=5.0, values=[(1, 1, 1)])
+    hidden.hide_render = True
+    eye = quad_mesh("HiddenInViewport", z=6.0, values=[(1, 1, 1)])
+    eye.hide_viewport = True
+    col = bpy.data.collections.new("NoRender")
+    bpy.context.scene.collection.children.link(col)
+    col.hide_render = True
+    inner = quad_mesh("InNoRenderCollection", z=7.0, values=[(1, 1, 1)])
+    bpy.context.scene.collection.objects.unlink(inner)
+    col.objects.link(inner)
+    arr = base.modifiers.new("Array", "ARRAY")
+    arr.count = 3
+    # a collection instance of a mirrored object
+    src_col = bpy.data.collections.new("Src")
+    mirrored = bpy.data.objects.new("Mirrored", bpy.data.meshes["Base"].copy())
+    mirrored.scale = (-1.0, 1.0, 1.0)
+    src_col.objects.link(mirrored)
+    inst = bpy.data.objects.new("Inst", None)
+    inst.instance_type = "COLLECTION"
+    inst.instance_collection = src_col
+    inst.location = (0, 0, 2)
+    bpy.context.scene.collection.objects.link(inst)
+    ex = export(hlp)
+    names = ex.objects
+    assert "HiddenFromRender" not in names and "InNoRenderCollection" not in names
+    assert "HiddenInViewport" in names  # hidden in the viewport only: rendered, so exported
+    assert eye.hide_viewport  # and the flag was restored
+    assert "Mirrored (instance 0 of Inst)" in names
+    i_base = names.index("Base")
+    assert np.sum(ex.polygon_object == i_base) == 6  # array modifier applied
+    i_m = names.index("Mirrored (instance 0 of Inst)")
+    rows = np.flatnonzero(np.isin(ex.scene.poly_source, np.flatnonzero(ex.polygon_object == i_m)))
+    np.testing.assert_allclose(ex.scene.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
+    assert ex.scene.poly_vertices[rows][..., 0].max() <= 0.0 and ex.scene.poly_vertices[rows][..., 2].min() == 2.0

@@ -1,0 +1,53 @@
+"""The core and the add-on package import without Blender: no bpy, mathutils, gpu (or bmesh).
+
+Checked in a fresh interpreter. Besides looking at sys.modules afterwards, an import hook records
+every *attempt* to import one of these modules (a guarded ``try: import bpy`` would otherwise go
+unnoticed here, where bpy is not installed).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+FORBIDDEN = ("bpy", "mathutils", "gpu", "bmesh")
+
+PROBE = r"""
+import importlib.abc, json, sys
+FORBIDDEN = {forbidden!r}
+attempts = []
+
+class Recorder(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in FORBIDDEN:
+            attempts.append(name)
+        return None
+
+sys.meta_path.insert(0, Recorder())
+import {module}
+loaded = sorted(m for m in sys.modules if m.split(".")[0] in FORBIDDEN)
+print(json.dumps({{"attempts": attempts, "loaded": loaded}}))
+"""
+
+
+@pytest.mark.parametrize("module", ["hemisphere_local_pass.core", "hemisphere_local_pass"])
+def test_import_without_blender(module):
+    code = PROBE.format(forbidden=FORBIDDEN, module=module)
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["loaded"] == [], f"import {module} loaded {result['loaded']}"
+    assert result["attempts"] == [], f"import {module} tried to import {result['attempts']}"
+
+
+def test_core_public_api():
+    code = ("import hemisphere_local_pass.core as c; "
+            "print(all(hasattr(c, n) for n in ('Scene', 'form_factors', 'irradiance', 'radiance', 'project_point')))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "True"
