@@ -87,8 +87,8 @@ def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occl
     ptr, ids, hidden = occluder_pairs(cand, sv, table, occ, scene, points)
     vis = np.flatnonzero(~hidden)
     frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
-                      cand.point[vis], cand.poly[vis], cand.side[vis])
-    frags, _ = subtract_shadow_volumes(frags, vis, ptr, ids, sv)
+                      cand.point[vis], cand.poly[vis], cand.side[vis], vis)
+    frags = subtract_shadow_volumes(frags, ptr, ids, sv)
     ff = frags.side * _contour_by_width(frags, normals)
     if not reps.all():
         # credit each fragment to the copy that faces the receiver (then the lowest index)

@@ -36,7 +36,8 @@ class Fragments:
     """Visible fragments (P-local), flat over all receivers of a chunk.
 
     Attributes: verts (F, K, 3); inf (F, K, 3) or None; counts (F,); point (F,) receiver; poly (F,)
-    convex polygon; side (F,) receiver side of the polygon's plane (+1 behind, -1 in front).
+    convex polygon; side (F,) receiver side of the polygon's plane (+1 behind, -1 in front); owner
+    (F,) the candidate each fragment was cut from (internal to the visibility stage).
     """
 
     verts: np.ndarray
@@ -45,6 +46,30 @@ class Fragments:
     point: np.ndarray
     poly: np.ndarray
     side: np.ndarray
+    owner: np.ndarray
+
+    def take(self, sel) -> Fragments:
+        return Fragments(self.verts[sel], None if self.inf is None else self.inf[sel], self.counts[sel],
+                         self.point[sel], self.poly[sel], self.side[sel], self.owner[sel])
+
+    def pieces(self, src, verts, counts, inf) -> Fragments:
+        """New fragments ``verts (p, K, 3)`` cut from fragments ``src (p,)`` of this set."""
+        return Fragments(verts, inf, counts, self.point[src], self.poly[src], self.side[src], self.owner[src])
+
+    @staticmethod
+    def concat(parts: list[Fragments]) -> Fragments:
+        parts = [p for p in parts if len(p.owner)] or parts[:1]
+        width = max(3, max(int(p.counts.max(initial=3)) for p in parts))
+        dual = parts[0].inf is not None
+        return Fragments(
+            np.concatenate([_fit(p.verts, p.counts, width) for p in parts]),
+            np.concatenate([_fit(p.inf, p.counts, width) for p in parts]) if dual else None,
+            np.concatenate([p.counts for p in parts]),
+            np.concatenate([p.point for p in parts]),
+            np.concatenate([p.poly for p in parts]),
+            np.concatenate([p.side for p in parts]),
+            np.concatenate([p.owner for p in parts]),
+        )
 
 
 @dataclass
@@ -380,21 +405,20 @@ def _plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray, j)
     return side, s_re, s_inf, eps
 
 
-def subtract_shadow_volumes(frags: Fragments, owner: np.ndarray, ptr: np.ndarray, ids: np.ndarray,
-                            sv: ShadowVolumes) -> tuple[Fragments, np.ndarray]:
+def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes) -> Fragments:
     """Remove from every fragment the parts inside its occluders' shadow volumes.
 
     Args:
-        frags: fragments; owner: (F,) candidate of each fragment; ptr, ids: the candidates' occluder
-            instances (CSR, nearest first); sv: the shadow volumes.
+        frags: fragments (``owner``: their candidates); ptr, ids: the candidates' occluder instances
+            (CSR, nearest first); sv: the shadow volumes.
     Returns:
-        the visible fragments and their owners.
+        the visible fragments.
     """
     dual = frags.inf is not None
     n_occ = np.diff(ptr)
     j_planes = sv.normal.shape[1]
     done: list[tuple] = []
-    work = _FragSet.of(frags, owner)
+    work = frags
     r = 0
     while len(work.owner):
         finished = n_occ[work.owner] <= r
@@ -462,51 +486,10 @@ def subtract_shadow_volumes(frags: Fragments, owner: np.ndarray, ptr: np.ndarray
                 sel = hidden[it]
                 if sel.any():
                     parts.append(work.pieces(it[sel], pv[sel], pc[sel], pi[sel] if dual else None))
-            work = _FragSet.concat(parts)
+            work = Fragments.concat(parts)
         r += 1
     done.append(work)
-    out = _FragSet.concat(done)
-    return Fragments(out.verts, out.inf, out.counts, out.point, out.poly, out.side), out.owner
-
-
-@dataclass
-class _FragSet:
-    """Fragments with their owning candidates, as one set of parallel arrays (internal)."""
-
-    verts: np.ndarray
-    inf: np.ndarray | None
-    counts: np.ndarray
-    point: np.ndarray
-    poly: np.ndarray
-    side: np.ndarray
-    owner: np.ndarray
-
-    @classmethod
-    def of(cls, f: Fragments, owner: np.ndarray) -> _FragSet:
-        return cls(f.verts, f.inf, f.counts, f.point, f.poly, f.side, owner)
-
-    def take(self, sel) -> _FragSet:
-        return _FragSet(self.verts[sel], None if self.inf is None else self.inf[sel], self.counts[sel],
-                        self.point[sel], self.poly[sel], self.side[sel], self.owner[sel])
-
-    def pieces(self, src, verts, counts, inf) -> _FragSet:
-        """New fragments ``verts (p, K, 3)`` cut from fragments ``src (p,)`` of this set."""
-        return _FragSet(verts, inf, counts, self.point[src], self.poly[src], self.side[src], self.owner[src])
-
-    @staticmethod
-    def concat(parts: list[_FragSet]) -> _FragSet:
-        parts = [p for p in parts if len(p.owner)] or parts[:1]
-        width = max(3, max(int(p.counts.max(initial=3)) for p in parts))
-        dual = parts[0].inf is not None
-        return _FragSet(
-            np.concatenate([_fit(p.verts, p.counts, width) for p in parts]),
-            np.concatenate([_fit(p.inf, p.counts, width) for p in parts]) if dual else None,
-            np.concatenate([p.counts for p in parts]),
-            np.concatenate([p.point for p in parts]),
-            np.concatenate([p.poly for p in parts]),
-            np.concatenate([p.side for p in parts]),
-            np.concatenate([p.owner for p in parts]),
-        )
+    return Fragments.concat(done)
 
 
 def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
