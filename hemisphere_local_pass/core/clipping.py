@@ -52,6 +52,29 @@ def pad_repeat_last(verts: np.ndarray, counts: np.ndarray, width: int) -> np.nda
     return np.take_along_axis(verts, idx[:, :, None], axis=1)
 
 
+def _resolve_isolated_zeros(side: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Give every on-plane vertex whose nearest off-plane neighbours (both ways round the polygon)
+    lie on the same side that side. ``side (R, K)`` int8 with both signs present in every row."""
+    r, k = side.shape
+    idx = np.arange(k)
+    out = side.copy()
+    prev_nz = np.zeros((r, k), dtype=np.int8)
+    next_nz = np.zeros((r, k), dtype=np.int8)
+    last = np.zeros(r, dtype=np.int8)
+    for j in list(range(k)) * 2:  # two passes round the cycle: the wrap-around is seen
+        live = j < counts
+        prev_nz[live, j] = last[live]
+        last = np.where(live & (side[:, j] != 0), side[:, j], last)
+    last[:] = 0
+    for j in list(range(k - 1, -1, -1)) * 2:
+        live = j < counts
+        next_nz[live, j] = last[live]
+        last = np.where(live & (side[:, j] != 0), side[:, j], last)
+    fix = (side == 0) & (prev_nz == next_nz) & (prev_nz != 0) & (idx[None, :] < counts[:, None])
+    out[fix] = prev_nz[fix]
+    return out
+
+
 def _compact(cand: np.ndarray, keep: np.ndarray, width: int):
     """Pack the kept slots of ``cand (F, S, 3)`` left, padded to ``width`` by repeating the last."""
     counts = keep.sum(axis=1)
@@ -81,26 +104,28 @@ def split_convex(
         s_re: (F, K) signed distance of every vertex slot; eps: (F,) on-plane tolerance.
         inf, s_inf: (F, K, 3) and (F, K) first-order parts (see module docstring), or None.
     Returns:
-        ``(inside, outside)``, each a tuple ``(verts (F, K+1, 3), counts (F,), inf or None)``;
-        a side's count is 0 where it is empty.
+        ``(inside, outside)``, each a tuple ``(verts (F, W, 3), counts (F,), inf or None)`` with
+        ``W >= K+1`` (K+1 for convex input); a side's count is 0 where it is empty.
     """
     f, k, _ = verts.shape
     dual = inf is not None
     side = classify(s_re, eps, s_inf if dual else None)
     valid = np.arange(k)[None, :] < counts[:, None]
     side = np.where(valid, side, 0)
-    nxt = np.where(np.arange(k)[None, :] + 1 < counts[:, None], np.arange(k)[None, :] + 1, 0)  # (F, K)
-    side_n = np.take_along_axis(side, nxt, axis=1)
-    crossing = valid & (side * side_n < 0)
-
     any_in = (side > 0).any(axis=1)
     any_out = (side < 0).any(axis=1)
     in_ok = any_in
     out_ok = any_out | ~any_in
+    # On-plane vertices bound both pieces. Rounding can put a vertex "on" the plane between two
+    # neighbours on the same side — impossible for a convex polygon, and it would make both pieces
+    # contain a sliver; such a vertex takes its neighbours' side.
+    mixed = any_in & any_out & (valid & (side == 0)).any(axis=1)
+    if mixed.any():
+        side[mixed] = _resolve_isolated_zeros(side[mixed], counts[mixed])
+    nxt = np.where(np.arange(k)[None, :] + 1 < counts[:, None], np.arange(k)[None, :] + 1, 0)  # (F, K)
+    side_n = np.take_along_axis(side, nxt, axis=1)
+    crossing = valid & (side * side_n < 0)
 
-    # Intersection points on crossing edges. Real parts within tolerance count as zero so that a
-    # vertex classified "on the plane" by its first-order part interpolates consistently.
-    width = k + 1
     cand_v = np.zeros((f, 2 * k, 3))
     cand_v[:, 0::2] = verts
     cand_inf = None
@@ -113,6 +138,8 @@ def split_convex(
         a0 = s_re[r, j]
         b0 = s_re[r, jn]
         e = eps[r]
+        # real parts within tolerance count as zero, so that a vertex whose side came from its
+        # first-order part interpolates consistently (and an on-plane vertex is its own crossing)
         a0 = np.where(np.abs(a0) > e, a0, 0.0)
         b0 = np.where(np.abs(b0) > e, b0, 0.0)
         xa, xb = verts[r, j], verts[r, jn]
@@ -120,13 +147,14 @@ def split_convex(
             a1, b1 = s_inf[r, j], s_inf[r, jn]
             both0 = (a0 == 0.0) & (b0 == 0.0)
             den0 = np.where(both0, 1.0, a0 - b0)
-            den1 = np.where(both0, a1 - b1, 1.0)
-            t0 = np.where(both0, a1 / den1, a0 / den0)
+            den1 = np.where(both0 & (a1 != b1), a1 - b1, 1.0)
+            t0 = np.where(both0, np.where(a1 != b1, a1 / den1, 0.0), a0 / den0)
             t1 = np.where(both0, 0.0, (a0 * b1 - a1 * b0) / (den0 * den0))
             ia, ib = inf[r, j], inf[r, jn]
             cand_inf[r, 2 * j + 1] = ia + t0[:, None] * (ib - ia) + t1[:, None] * (xb - xa)
         else:
-            t0 = a0 / (a0 - b0)
+            same = a0 == b0  # both rounded onto the plane (a resolved zero next to another)
+            t0 = np.where(same, 0.0, a0 / np.where(same, 1.0, a0 - b0))
         # interpolate from the endpoint nearer the plane: the new vertex then stays within one
         # rounding of the plane whichever way the edge is walked (neighbours share the point)
         near_a = np.abs(a0) <= np.abs(b0)
@@ -135,11 +163,16 @@ def split_convex(
 
     keep_cross = np.zeros((f, 2 * k), dtype=bool)
     keep_cross[:, 1::2] = crossing
-    results = []
+    keeps = []
     for ok, keep_side in ((in_ok, side >= 0), (out_ok, side <= 0)):
         keep = keep_cross.copy()
         keep[:, 0::2] = valid & keep_side
         keep &= ok[:, None]
+        keeps.append(keep)
+    # a convex polygon gains at most one vertex; rounding can make a nearly degenerate one cross more
+    width = max(k + 1, int(max(kp.sum(axis=1).max(initial=0) for kp in keeps)))
+    results = []
+    for keep in keeps:
         out_v, out_c = _compact(cand_v, keep, width)
         out_inf = _compact(cand_inf, keep, width)[0] if dual else None
         results.append((out_v, out_c, out_inf))

@@ -89,8 +89,7 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     # sliver near the horizon) each term's rounding is amplified by Σ|t| / |Σ t|; redo those rows in
     # extended precision (80-bit on x86; where longdouble is double this changes nothing).
     cond = np.abs(terms).sum(axis=1)
-    # (rows whose terms are all tiny have a negligible absolute error, whatever the cancellation)
-    bad = (cond > _CANCELLATION * np.abs(total)) & (cond > _NEGLIGIBLE)
+    bad = cond > _CANCELLATION * np.abs(total)
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
         total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], None if inf is None else
                                      (cx[bad], cy[bad], cz[bad]))
@@ -100,8 +99,6 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
 #: relative cancellation in eq. 4 above which a row is recomputed in extended precision: float64
 #: rounding (~4e-16 per term) then stays below 1e-13 relative
 _CANCELLATION = 250.0
-#: below this sum of |terms| the absolute error (< 1e-22) does not matter
-_NEGLIGIBLE = 1e-6
 
 
 def _terms_extended(a, normal, nonzero, gamma64, first_order):

@@ -139,6 +139,10 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
             inf=None if inf is None else inf[s, :k],
             s_inf=None if inf is None else np.zeros_like(height[s, :k]),  # N . u = 0: u is tangent
         )
+        if iv.shape[1] > verts.shape[1]:  # rounding made a nearly degenerate polygon cross twice more
+            verts = np.concatenate([verts, np.repeat(verts[:, -1:], iv.shape[1] - verts.shape[1], axis=1)], axis=1)
+            if inf is not None:
+                inf = np.concatenate([inf, np.repeat(inf[:, -1:], iv.shape[1] - inf.shape[1], axis=1)], axis=1)
         verts[s], counts[s] = iv, ic
         if inf is not None:
             inf[s] = iinf

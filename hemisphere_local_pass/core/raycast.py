@@ -22,9 +22,10 @@ the leaves give candidate (ray, polygon) pairs, and the exact test runs on those
 
 Memory bound: rays are processed ``chunk`` at a time; if the (ray, node) or (ray, polygon) pairs of a
 chunk exceed ``max_pairs`` the chunk is split in halves (down to one ray), so the working set stays
-below about ``max_pairs * (K * 24 + 200)`` bytes (K = padded vertex count; ~120 MB for the default
-``max_pairs = 2**19`` and K = 4) plus ``O(n)`` for the tree — except when a single ray alone meets
-more than ``max_pairs`` nodes, which needs a scene of more than ``max_pairs`` polygons.
+below about ``max_pairs * (K * 24 + 300)`` bytes (K = padded vertex count; ~210 MB for the default
+``max_pairs = 2**19`` and K = 4; pass a smaller ``max_pairs`` to go lower) plus ``O(n)`` for the
+tree — except when a single ray alone meets more than ``max_pairs`` nodes, which needs a scene of
+more than ``max_pairs`` polygons.
 """
 
 from __future__ import annotations

@@ -467,11 +467,17 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
                     cur_v[cut, :k], cur_c[cut], s_re[cut, :k], eps[cut],
                     inf=cur_i[cut, :k] if dual else None, s_inf=s_inf[cut, :k] if dual else None)
                 pieces.append((item[cut], ov, oc, oi))
-                cur_v[cut, : k + 1] = iv
-                cur_v[cut, k + 1:] = iv[:, -1:]
+                w = iv.shape[1]
+                if w > cur_v.shape[1]:  # only where rounding made a fragment cross more than twice
+                    cur_v = _fit(cur_v, cur_c, w)
+                    cur_i = _fit(cur_i, cur_c, w) if dual else None
+                    side_all, sre_all = _zero_pad(side_all, w), _zero_pad(sre_all, w)
+                    sinf_all = _zero_pad(sinf_all, w) if dual else None
+                cur_v[cut, :w] = iv
+                cur_v[cut, w:] = iv[:, -1:]
                 if dual:
-                    cur_i[cut, : k + 1] = ii
-                    cur_i[cut, k + 1:] = ii[:, -1:]
+                    cur_i[cut, :w] = ii
+                    cur_i[cut, w:] = ii[:, -1:]
                 cur_c[cut] = ic
                 cut_before[item[cut]] = True
             item, cur_v, cur_c = item[has_in], cur_v[has_in], cur_c[has_in]
@@ -490,6 +496,12 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
         r += 1
     done.append(work)
     return Fragments.concat(done)
+
+
+def _zero_pad(a: np.ndarray, width: int) -> np.ndarray:
+    """``a (..., K)`` widened to ``width`` along its last axis with zeros."""
+    pad = [(0, 0)] * (a.ndim - 1) + [(0, width - a.shape[-1])]
+    return np.pad(a, pad)
 
 
 def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
