@@ -6,8 +6,9 @@ Runs in a Python with the ``bpy`` module (Blender 4.2 LTS as a module)::
     OMP_NUM_THREADS=1 "$(bpy_python 4.2)" benchmarks/bench_cycles.py [--scenes small] [--size 256]
 
 The Cycles scene is built from ``scenes.cornell_box`` with the first-pass radiance L of every polygon
-(``benchmarks/_common.py``). Its material is the local-pass equivalent: a Diffuse BSDF of colour ρ added
-to an Emission whose colour is E for camera rays and L for all other rays (Light Path "Is Camera Ray"),
+(``benchmarks/_common.py``). Every polygon gets its own material, the local-pass equivalent with constant
+colours: a Diffuse BSDF of colour ρ added to an Emission of colour E for camera rays and L for all other
+rays (a Mix Shader on Light Path "Is Camera Ray"),
 with max bounces 0: a pixel is ``E + ρ Σ_i F_i L_i`` — the exact method's ``E + ρ/π H`` (eq. 5, the
 core's ``radiance``, with ``H = π Σ L F`` its ``irradiance``). No clamping, no denoising, no adaptive
 sampling, black world, Standard view transform, Gaussian pixel filter of width 0.01 (samples at the pixel
@@ -41,16 +42,38 @@ from hemisphere_local_pass.scenes import PAPER_SETTINGS, camera_rays, cornell_bo
 
 DOCS = ROOT / "docs"
 
+#: Sub-pixel lens shift (in pixels) of both the Cycles camera and the exact image. The classic frame
+#: is symmetric: the box's edges project onto the image diagonals, exactly through pixel centres, where
+#: the exact value at the centre (a point on an edge) differs from the average Cycles takes over its
+#: 0.01-pixel filter. A shift that is not a multiple of the pixel keeps every centre off those edges.
+SHIFT_PX = (0.13, 0.07)
+
+
+def shifted_camera_rays(box, size):
+    """Camera rays through the pixel centres moved by :data:`SHIFT_PX` (Blender's lens shift), started
+    just inside the front wall like :func:`scenes.camera_rays`; ``(size², 3)`` each, top row first."""
+    o, d = camera_rays(box, size)
+    cam = box.camera
+    fwd = cam["direction"] / np.linalg.norm(cam["direction"])
+    right = np.cross(fwd, cam["up"])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    px = 2.0 * np.tan(0.5 * cam["fov"]) / size  # pixel size on the image plane at distance 1
+    d = d / (d @ fwd)[:, None] + px * (SHIFT_PX[0] * right + SHIFT_PX[1] * up)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t0 = (1e-9 * box.size - cam["location"][1]) / d[:, 1]
+    return cam["location"] + t0[:, None] * d, d
+
 
 def exact_image(key, box, lum, size):
     """``(size, size, 3)`` exact radiance image ``E + ρ/π H`` (eq. 5; top row first) and its seconds; cached."""
     CACHE.mkdir(parents=True, exist_ok=True)
-    path = CACHE / f"exact_image_{key}_{box.n_polygons}_{size}.npz"
+    path = CACHE / f"exact_image_{key}_{box.n_polygons}_{size}_shift{SHIFT_PX[0]}_{SHIFT_PX[1]}.npz"
     if path.exists():
         z = np.load(path)
         return z["image"], float(z["seconds"])
     scene = box.scene(radiance=lum)
-    o, d = camera_rays(box, size)
+    o, d = shifted_camera_rays(box, size)
     t = time.perf_counter()
     h = cast_rays(scene, o, d)
     src = h.source
@@ -73,32 +96,34 @@ def build_blender_scene(box, lum, size, threads):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     front = np.array([nm == "front wall" for nm in box.names])
-    mat = bpy.data.materials.new("local_pass")
-    mat.use_nodes = True
-    nt = mat.node_tree
-    nt.nodes.clear()
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    add = nt.nodes.new("ShaderNodeAddShader")
-    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
-    emission = nt.nodes.new("ShaderNodeEmission")
-    emission.inputs["Strength"].default_value = 1.0
-    mix = nt.nodes.new("ShaderNodeMix")
-    mix.data_type = "RGBA"
-    path = nt.nodes.new("ShaderNodeLightPath")
-    attrs = {}
-    for name in ("rho", "L", "E"):
-        a = nt.nodes.new("ShaderNodeAttribute")
-        a.attribute_type = "GEOMETRY"
-        a.attribute_name = name
-        attrs[name] = a
-    nt.links.new(attrs["rho"].outputs["Color"], diffuse.inputs["Color"])
-    nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Factor"])
-    nt.links.new(attrs["L"].outputs["Color"], mix.inputs["A"])  # other rays: first-pass radiance L
-    nt.links.new(attrs["E"].outputs["Color"], mix.inputs["B"])  # camera rays: emission E
-    nt.links.new(mix.outputs["Result"], emission.inputs["Color"])
-    nt.links.new(diffuse.outputs["BSDF"], add.inputs[0])
-    nt.links.new(emission.outputs["Emission"], add.inputs[1])
-    nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+    # One material per polygon with constant colours: Cycles estimates each mesh light's power from
+    # constant emission inputs (a colour driven by an attribute counts as 1), and its light sampling
+    # (light tree or not) is only as good as that estimate.
+    mats = []
+    for i in range(box.n_polygons):
+        mat = bpy.data.materials.new(f"local_pass_{i}")
+        mat.use_nodes = True
+        nt = mat.node_tree
+        nt.nodes.clear()
+        out = nt.nodes.new("ShaderNodeOutputMaterial")
+        add = nt.nodes.new("ShaderNodeAddShader")
+        diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+        diffuse.inputs["Color"].default_value = (*box.reflectivity[i], 1.0)
+        em_l = nt.nodes.new("ShaderNodeEmission")  # other rays: first-pass radiance L
+        em_l.inputs["Color"].default_value = (*lum[i], 1.0)
+        em_e = nt.nodes.new("ShaderNodeEmission")  # camera rays: emission E
+        em_e.inputs["Color"].default_value = (*box.emission[i], 1.0)
+        for em in (em_l, em_e):
+            em.inputs["Strength"].default_value = 1.0
+        mix = nt.nodes.new("ShaderNodeMixShader")
+        path = nt.nodes.new("ShaderNodeLightPath")
+        nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
+        nt.links.new(em_l.outputs["Emission"], mix.inputs[1])
+        nt.links.new(em_e.outputs["Emission"], mix.inputs[2])
+        nt.links.new(diffuse.outputs["BSDF"], add.inputs[0])
+        nt.links.new(mix.outputs["Shader"], add.inputs[1])
+        nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+        mats.append(mat)
 
     for label, sel in (("room", ~front), ("front_wall", front)):
         idx = np.flatnonzero(sel)
@@ -106,11 +131,10 @@ def build_blender_scene(box, lum, size, threads):
         mesh = bpy.data.meshes.new(label)
         mesh.from_pydata([tuple(v) for v in box.vertices], [], polys)
         mesh.update()
-        for name, values in (("rho", box.reflectivity[idx]), ("L", lum[idx]), ("E", box.emission[idx])):
-            attr = mesh.attributes.new(name, "FLOAT_COLOR", "FACE")
-            rgba = np.concatenate([values, np.ones((len(idx), 1))], axis=1).astype(np.float32)
-            attr.data.foreach_set("color", rgba.ravel())
-        mesh.materials.append(mat)
+        for i in idx:
+            mesh.materials.append(mats[i])
+        mesh.polygons.foreach_set("material_index", np.arange(len(idx), dtype=np.int32))
+        mesh.update()
         obj = bpy.data.objects.new(label, mesh)
         scene.collection.objects.link(obj)
         if label == "front_wall":
@@ -119,6 +143,8 @@ def build_blender_scene(box, lum, size, threads):
     cam_data = bpy.data.cameras.new("camera")
     cam_data.sensor_fit = "HORIZONTAL"
     cam_data.angle = float(box.camera["fov"])
+    cam_data.shift_x = SHIFT_PX[0] / size  # in image widths
+    cam_data.shift_y = SHIFT_PX[1] / size
     cam_data.clip_start = 1e-3 * box.size
     cam_data.clip_end = 100.0 * box.size
     cam = bpy.data.objects.new("camera", cam_data)
@@ -158,16 +184,17 @@ def build_blender_scene(box, lum, size, threads):
     c.pixel_filter_type = "GAUSSIAN"
     c.filter_width = 0.01
     c.seed = 0
-    return scene, mat
+    return scene, mats
 
 
-def render(scene, mat, spp, mode, path):
+def render(scene, mats, spp, mode, path):
     import bpy
 
     c = scene.cycles
     c.samples = int(spp)
     c.use_light_tree = mode != "light tree off"
-    mat.cycles.emission_sampling = "NONE" if mode == "BSDF sampling only" else "AUTO"
+    for mat in mats:
+        mat.cycles.emission_sampling = "NONE" if mode == "BSDF sampling only" else "AUTO"
     scene.render.filepath = str(path)
     t = time.perf_counter()
     bpy.ops.render.render(write_still=True)
@@ -231,7 +258,7 @@ def main(argv=None):
         y_exact = luminance(exact)
         mean = float(y_exact.mean())
         log(f"[{key}] exact image {args.size}² in {t_exact:.1f} s (cached or computed)")
-        scene, mat = build_blender_scene(box, lum, args.size, args.threads)
+        scene, mats = build_blender_scene(box, lum, args.size, args.threads)
         entry = {"scene": key, "polygons": box.n_polygons, "exact_seconds": t_exact, "modes": {}}
         md.append(f"## {box.n_polygons} polygons, {args.size}×{args.size}\n")
         md.append(f"Exact image: {t_exact:.1f} s ({t_exact / args.size**2 * 1e3:.3f} ms per pixel).\n")
@@ -241,7 +268,7 @@ def main(argv=None):
             for mode in args.modes.split(","):
                 rows = []
                 for spp in spps:
-                    img, sec = render(scene, mat, spp, mode, Path(tmp) / f"r_{spp}.exr")
+                    img, sec = render(scene, mats, spp, mode, Path(tmp) / f"r_{spp}.exr")
                     d = luminance(img) - y_exact
                     row = {"spp": spp, "seconds": sec, "rms": float(np.sqrt(np.mean(d * d)) / mean),
                            "max": float(np.abs(d).max() / mean), "bias": float(d.mean() / mean)}

@@ -30,8 +30,8 @@ from scenes_for_tests import (
 
 TOL = 1e-10
 # random receivers per scene in the slow test: 10,000 where the runtime allows; the 324-polygon box
-# room costs ~30-70 ms per point on one core (Nov 2026), so it gets 1,500 (21,500 in total)
-N_POINTS = {"split_box": 10_000, "cornell": 10_000, "box_room": 1500}
+# room costs ~20 ms per point on one core (Nov 2026), so it gets 3,000 (23,000 in total, ~1.5 min)
+N_POINTS = {"split_box": 10_000, "cornell": 10_000, "box_room": 3000}
 
 BOX_LO = np.array([-1.5, 2.0, 0.25])
 BOX_HI = np.array([1.5, 4.5, 2.25])
