@@ -34,14 +34,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .tolerances import RAY_EPS
+
 __all__ = ["RAY_EPS", "RayHits", "Bvh", "build_bvh", "cast_rays", "default_t_min"]
 
-#: Default ``t_min`` is ``RAY_EPS`` times the ray's length scale (distance of its origin from the
-#: scene's centre plus the scene's radius), measured in units of ``|d|``: rays leaving a surface do
-#: not hit that surface again through rounding (the self-hit ``t`` is ~1e-16 of that scale divided
-#: by the cosine of the ray with the surface, so grazing angles down to cos ~ 1e-7 are safe).
-#: Occluders nearer than this are missed. (Candidate for ``core/tolerances.py``.)
-RAY_EPS = 1e-9
 
 #: Polygons per BVH leaf.
 LEAF_SIZE = 4

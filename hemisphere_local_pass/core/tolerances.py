@@ -24,3 +24,10 @@ DUPLICATE_EPS = 1e-12
 #: A polygon is convex when every turn of its boundary is left of the normal by at least
 #: ``-CONVEXITY_EPS`` times the product of the two edge lengths.
 CONVEXITY_EPS = 1e-12
+
+#: Ray casting (:mod:`.raycast`): the default ``t_min`` is ``RAY_EPS`` times the ray's length scale
+#: (distance of its origin from the scene's centre plus the scene's radius), in units of ``|d|``, so
+#: rays leaving a surface do not hit it again through rounding (the self-hit ``t`` is ~1e-16 of that
+#: scale over the cosine with the surface: grazing angles down to cos ~ 1e-7 are safe). Occluders
+#: nearer than this are missed.
+RAY_EPS = 1e-9
