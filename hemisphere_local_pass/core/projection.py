@@ -26,6 +26,18 @@ from .tolerances import PLANE_EPS
 __all__ = ["Candidates", "Projection", "hemisphere_candidates", "project_point", "receiver_side"]
 
 
+def _side(d, tol, d_inf):
+    """+1 / -1 / 0 (int8) from plane distances ``d`` with tolerance ``tol``; where ``d`` is within it,
+    from the first-order distances ``d_inf()`` (a callable: computed only if needed) or 0."""
+    side = np.where(d > tol, 1, np.where(d < -tol, -1, 0)).astype(np.int8)
+    if d_inf is not None:
+        on = side == 0
+        if on.any():
+            di = d_inf()[on]
+            side[on] = np.where(di > PLANE_EPS, 1, np.where(di < -PLANE_EPS, -1, 0))
+    return side
+
+
 def receiver_side(normals, first_vertex_rel, scale, limit):
     """Side of each plane the receiver is on, ``(m, n)`` int8: +1 behind (plane normal points away
     from P), -1 in front, 0 in the plane (edge-on).
@@ -35,15 +47,8 @@ def receiver_side(normals, first_vertex_rel, scale, limit):
         scale: (m, n) length scale for the tolerance; limit: (m, 3) limit directions or None.
     """
     d = (first_vertex_rel * normals[None]).sum(axis=2)                 # n . (v0 - P)
-    side = np.where(d > PLANE_EPS * scale, 1, np.where(d < -PLANE_EPS * scale, -1, 0)).astype(np.int8)
-    if limit is not None:
-        on = side == 0
-        if on.any():
-            # at P + εu the plane distance is n.(v0 - P) - ε n.u
-            d_inf = -(limit @ normals.T)                                 # (m, n)
-            side = np.where(on, np.where(d_inf > PLANE_EPS, 1, np.where(d_inf < -PLANE_EPS, -1, 0)), side)
-            side = side.astype(np.int8)
-    return side
+    # at P + εu the plane distance is n.(v0 - P) - ε n.u
+    return _side(d, PLANE_EPS * scale, None if limit is None else (lambda: -(limit @ normals.T)))
 
 
 def plane_side(normals, rel_center, center_offset, scale, limit):
@@ -55,13 +60,7 @@ def plane_side(normals, rel_center, center_offset, scale, limit):
         limit: (C, 3) limit directions or None. +1: P behind the plane, -1 in front, 0 in it.
     """
     d = (normals * rel_center).sum(axis=1) - center_offset                     # n . (v0 - P)
-    side = np.where(d > PLANE_EPS * scale, 1, np.where(d < -PLANE_EPS * scale, -1, 0)).astype(np.int8)
-    if limit is not None:
-        on = side == 0
-        if on.any():
-            d_inf = -(limit[on] * normals[on]).sum(axis=1)                     # at P + εu: d - ε n.u
-            side[on] = np.where(d_inf > PLANE_EPS, 1, np.where(d_inf < -PLANE_EPS, -1, 0))
-    return side
+    return _side(d, PLANE_EPS * scale, None if limit is None else (lambda: -(limit * normals).sum(axis=1)))
 
 
 def snap_to_receiver(verts: np.ndarray, eps: np.ndarray) -> None:

@@ -138,7 +138,7 @@ class Scene:
         if n:
             k = self.poly_vertices.shape[1]
             valid = np.arange(k)[None, :] < self.poly_counts[:, None]  # (n, K)
-            area_vec = _newell_padded(self.poly_vertices, self.poly_counts)
+            area_vec = _newell(self.poly_vertices)  # padding repeats the last vertex: no extra area
             self.poly_normals = area_vec / np.linalg.norm(area_vec, axis=1, keepdims=True)
             w = valid[..., None].astype(np.float64)
             self.poly_centers = (self.poly_vertices * w).sum(axis=1) / self.poly_counts[:, None]
@@ -414,12 +414,3 @@ class Scene:
         return (f"Scene({self.n_input} input polygons -> {self.n_polygons} convex, {mode} radiance, "
                 f"{len(self.dropped)} dropped)")
 
-
-def _newell_padded(verts: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Newell area vectors ``(n, 3)`` of padded polygons ``verts (n, K, 3)`` with ``counts (n,)``.
-
-    Padding repeats the last vertex, so the extra edges have zero length; the closing edge goes
-    from the last real vertex (= the padding) back to vertex 0, which ``np.roll`` gives directly.
-    """
-    del counts  # padding by repetition makes the plain Newell sum correct
-    return _newell(verts)
