@@ -48,7 +48,8 @@ class Occluders:
             side of polygon i's plane. o can only hide part of i from a receiver on a side o reaches to.
         tile_of: (n,) tile of every polygon; tiles split the members of large merged occluders into
             spatial groups of about :data:`TILE_SIZE` (sec. 3.4's voxels): tile_corners (T, 8, 3) the
-            corners of each tile's bounding box, tile_centers (T, 3), tile_radii (T,), tile_occluder (T,).
+            corners of each tile's bounding box, tile_centers (T, 3), tile_radii (T,), tile_occluder (T,);
+            tile_ptr (T+1,), tile_members: CSR lists of every tile's polygons (the hierarchy's leaves).
         coplanar_ptr (n+1,), coplanar_occ: CSR lists of the occluders in whose plane polygon i lies
             without being part of them (overlapping duplicates, reversed copies).
         first_source: (n_o,) lowest input polygon index among each occluder's members (tie-break).
@@ -71,6 +72,8 @@ class Occluders:
     tile_centers: np.ndarray
     tile_radii: np.ndarray
     tile_occluder: np.ndarray
+    tile_ptr: np.ndarray
+    tile_members: np.ndarray
     coplanar_ptr: np.ndarray
     coplanar_occ: np.ndarray
     first_source: np.ndarray
@@ -254,7 +257,10 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     corners = np.array(corners).reshape(-1, 8, 3)
     centers = corners.mean(axis=1)
     radii = np.linalg.norm(corners - centers[:, None], axis=2).max(axis=1) if len(corners) else np.zeros(0)
-    return tile_of, corners, centers, radii, np.array(occ_of, dtype=np.int64)
+    tile_members = np.argsort(tile_of, kind="stable")
+    tile_ptr = np.zeros(len(corners) + 1, dtype=np.int64)
+    np.add.at(tile_ptr, tile_of + 1, 1)
+    return tile_of, corners, centers, radii, np.array(occ_of, dtype=np.int64), np.cumsum(tile_ptr), tile_members
 
 
 def _tilt(verts: np.ndarray, counts: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 
 from .tolerances import PLANE_EPS
 
-__all__ = ["contour_integral", "directions"]
+__all__ = ["CANCELLATION", "contour_integral", "directions"]
 
 _INV_2PI = 1.0 / (2.0 * np.pi)
 
@@ -89,7 +89,7 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     # sliver near the horizon) each term's rounding is amplified by Σ|t| / |Σ t|; redo those rows in
     # extended precision (80-bit on x86; where longdouble is double this changes nothing).
     cond = np.abs(terms).sum(axis=1)
-    bad = cond > _CANCELLATION * np.abs(total)
+    bad = cond > CANCELLATION * np.abs(total)
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
         total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], None if inf is None else
                                      (cx[bad], cy[bad], cz[bad]))
@@ -98,7 +98,7 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
 
 #: relative cancellation in eq. 4 above which a row is recomputed in extended precision: float64
 #: rounding (~4e-16 per term) then stays below 1e-13 relative
-_CANCELLATION = 250.0
+CANCELLATION = 250.0
 
 
 def _terms_extended(a, normal, nonzero, gamma64, first_order):

@@ -13,11 +13,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .clear_tiles import TileEdges, clear_form_factors, clear_irradiance, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
-from .form_factor import contour_integral
+from .form_factor import CANCELLATION, contour_integral
 from .projection import hemisphere_candidates
 from .scene import Scene
-from .visibility import Fragments, occluder_pairs, shadow_volumes, subtract_shadow_volumes
+from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes
 
 __all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_with_ff"]
 
@@ -78,13 +79,35 @@ def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occl
 
     Returns ``(fragments, ff)`` with ``ff (F,)`` the form factor of each fragment (eq. 4, >= 0).
     """
-    occ = _occluders(scene, occluders)
+    frags, ff, _ = _visible(scene, points, normals, limit, _occluders(scene, occluders), include, use_clear=False)
+    return frags, ff
+
+
+def _tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
+    cached = getattr(scene, "_tile_edges", None)
+    if cached is None or cached[0] is not occ:
+        cached = (occ, tile_edges(scene, occ))
+        scene._tile_edges = cached
+    return cached[1]
+
+
+def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool):
+    """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` the clear tiles (see
+    :mod:`.clear_tiles`) are left out of the fragments and returned as ``clear = (pairs, tile_edges)``."""
     reps = scene.dup_rep == np.arange(scene.n_polygons)
     if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
         include = reps[None, :] if include is None else include & reps[None, :]
-    cand = hemisphere_candidates(scene, points, normals, limit, include)
     sv, table = shadow_volumes(occ, points, normals, limit)
-    ptr, ids, hidden = occluder_pairs(cand, sv, table, occ, scene, points)
+    cov = coverage(sv, table, occ, points)
+    skip = cov.hidden_tiles
+    clear = None
+    if use_clear and len(occ.tile_occluder):
+        te = _tile_edges(scene, occ)
+        pairs = clear_pairs(te, occ, cov, sv, table, points, normals, limit)
+        skip = skip | pairs.mask
+        clear = (pairs, te)
+    cand = hemisphere_candidates(scene, points, normals, limit, include, occluders=occ, hidden_tiles=skip)
+    ptr, ids, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
     vis = np.flatnonzero(~hidden)
     frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
                       cand.point[vis], cand.poly[vis], cand.side[vis], vis)
@@ -98,7 +121,18 @@ def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occl
         frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
         frags.side = np.where(use_opp, -frags.side, frags.side)
     # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
-    return frags, np.maximum(ff, 0.0)
+    return frags, np.maximum(ff, 0.0), clear
+
+
+def _clear_form_factors(scene: Scene, occ: Occluders, clear, points, normals):
+    """Members of the clear tiles: ``point (R,), poly (R,), ff (R,)``, as eq. 4 per polygon would give."""
+    pairs, te = clear
+    cp, poly, side, ff, cond = clear_form_factors(te, occ, pairs, points, normals)
+    bad = np.flatnonzero(cond > CANCELLATION)
+    if len(bad):  # strongly cancelling edge terms: the per-polygon path, with its extended precision
+        verts = scene.poly_vertices[poly[bad]] - points[cp[bad]][:, None, :]
+        ff[bad] = side[bad] * contour_integral(verts, normals[cp[bad]])
+    return cp, poly, np.maximum(ff, 0.0)
 
 
 def _contour_by_width(frags: Fragments, normals) -> np.ndarray:
@@ -161,9 +195,15 @@ def form_factors(
     """
     out = np.zeros((len(np.asarray(points).reshape(-1, 3)), scene.n_input))
 
+    occ = _occluders(scene, occluders)
+
     def per_chunk(s, e, p, n, u):
-        frags, ff = visible_fragments_with_ff(scene, p, n, u, occluders=occluders)
-        key = frags.point * scene.n_input + scene.poly_source[frags.poly]
+        frags, ff, clear = _visible(scene, p, n, u, occ, None, use_clear=True)
+        point, poly = frags.point, frags.poly
+        if clear is not None:
+            cp, cpoly, cff = _clear_form_factors(scene, occ, clear, p, n)
+            point, poly, ff = np.concatenate([point, cp]), np.concatenate([poly, cpoly]), np.concatenate([ff, cff])
+        key = point * scene.n_input + scene.poly_source[poly]
         out[s:e] = np.bincount(key, weights=ff, minlength=(e - s) * scene.n_input).reshape(e - s, scene.n_input)
         # a polygon can fill the hemisphere (F = 1 exactly); the fragment sum may round to 1 + 2e-16
         np.minimum(out[s:e], 1.0, out=out[s:e])
@@ -210,9 +250,11 @@ def irradiance(
     out = np.zeros((m, 3))
     emits = _emitter_mask(scene)
 
+    occ = _occluders(scene, occluders)
+
     def per_chunk(s, e, p, n, u):
         include = np.broadcast_to(emits[None, :], (e - s, scene.n_polygons))
-        frags, ff = visible_fragments_with_ff(scene, p, n, u, occluders=occluders, include=include)
+        frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear)
         lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
         if scene.linear:
             from .linear_radiance import linear_irradiance
@@ -225,6 +267,8 @@ def irradiance(
         contrib = np.where(lit[:, None], contrib, 0.0)
         for c in range(3):
             out[s:e, c] = np.pi * np.bincount(frags.point, weights=contrib[:, c], minlength=e - s)
+        if clear is not None:
+            out[s:e] += np.pi * clear_irradiance(clear[1], clear[0], p, n, scene.double_sided)
 
     _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
     return out

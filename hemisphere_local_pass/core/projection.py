@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clipping import split_convex
+from .csr import expand
 from .scene import Scene
 from .tolerances import PLANE_EPS
 
@@ -92,30 +93,53 @@ class Candidates:
     counts: np.ndarray
 
 
-def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=None) -> Candidates:
+def _tile_pairs(occ, points, normals, hidden_tiles):
+    """(receiver, polygon) pairs of the tiles that reach above each receiver's horizon and are not
+    known to be hidden: the hierarchy's first cut, dense over tiles only. Returns ``cp, ci (C,)``."""
+    rel_t = occ.tile_centers[None] - points[:, None]                            # (m, T, 3)
+    height_t = np.matmul(rel_t, normals[:, :, None])[..., 0]
+    dist_t = np.sqrt((rel_t * rel_t).sum(axis=2))
+    # a member vertex above the horizon lies in the tile's box, so inside its sphere (margin: rounding)
+    above = height_t + occ.tile_radii[None] > -PLANE_EPS * (dist_t + occ.tile_radii[None])
+    if hidden_tiles is not None:
+        above &= ~hidden_tiles
+    tp, tt = np.nonzero(above)
+    b, ci = expand(tt, occ.tile_ptr, occ.tile_members)
+    return tp[b], ci
+
+
+def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=None, *, occluders=None,
+                          hidden_tiles=None) -> Candidates:
     """Cull and clip every polygon to the upper hemisphere of every receiver.
 
     Args:
         points, normals: (m, 3) receivers; limit: (m, 3) limit directions (zero rows: none) or None.
-        include: optional (m, n) bool of pairs to consider at all (e.g. emitters only).
+        include: optional bool of pairs to consider at all (e.g. emitters only), broadcast to (m, n).
+        occluders: the scene's :class:`~.culling.Occluders`; with them, whole tiles are culled first
+            (horizon, and ``hidden_tiles (m, T)``: tiles known to be hidden, see
+            :func:`~.visibility.coverage`), so polygons there cost nothing.
     Returns:
         the candidates (polygons seen edge-on, with P in their plane, are left out).
     """
-    rel_c = scene.poly_centers[None, :, :] - points[:, None, :]               # (m, n, 3)
-    # horizon culling by bounding sphere first (conservative, cheap), then the rest sparsely
-    height_c = np.matmul(rel_c, normals[:, :, None])[..., 0]                  # (m, n)
-    dist_c = np.sqrt((rel_c * rel_c).sum(axis=2))
-    scale = dist_c + scene.poly_radii[None, :]
-    mask = height_c + scene.poly_radii[None, :] > PLANE_EPS * scale
+    if occluders is not None:
+        cp, ci = _tile_pairs(occluders, points, normals, hidden_tiles)
+    else:
+        m, n = len(points), scene.n_polygons
+        cp, ci = np.repeat(np.arange(m), n), np.tile(np.arange(n), m)
     if include is not None:
-        mask &= include
-    cp, ci = np.nonzero(mask)
-    rel_ci = rel_c[cp, ci]                                                      # (C, 3)
-    side = plane_side(scene.poly_normals[ci], rel_ci, scene.poly_center_offsets[ci], scale[cp, ci],
+        keep = np.broadcast_to(include, (len(points), scene.n_polygons))[cp, ci]
+        cp, ci = cp[keep], ci[keep]
+    # horizon culling by bounding sphere first (conservative, cheap), then by the vertices
+    rel_ci = scene.poly_centers[ci] - points[cp]                               # (C, 3)
+    height_c = (rel_ci * normals[cp]).sum(axis=1)
+    scale = np.sqrt((rel_ci * rel_ci).sum(axis=1)) + scene.poly_radii[ci]
+    mask = height_c + scene.poly_radii[ci] > PLANE_EPS * scale
+    cp, ci, rel_ci, scale = cp[mask], ci[mask], rel_ci[mask], scale[mask]
+    side = plane_side(scene.poly_normals[ci], rel_ci, scene.poly_center_offsets[ci], scale,
                       None if limit is None else limit[cp])
     keep = side != 0
     cp, ci, side = cp[keep], ci[keep], side[keep]
-    eps = PLANE_EPS * scale[cp, ci]
+    eps = PLANE_EPS * scale[keep]
     # one spare slot: clipping a convex polygon by one plane adds at most one vertex
     verts = scene.poly_vertices_spare[ci] - points[cp, None, :]                 # (C, K+1, 3)
     counts = scene.poly_counts[ci]

@@ -24,11 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clipping import classify, split_convex
+from .csr import expand
 from .culling import Occluders
 from .projection import Candidates, receiver_side, snap_to_receiver
 from .tolerances import PLANE_EPS
 
-__all__ = ["Fragments", "ShadowVolumes", "occluder_pairs", "shadow_volumes", "subtract_shadow_volumes"]
+__all__ = ["Coverage", "Fragments", "ShadowVolumes", "coverage", "occluder_pairs", "shadow_volumes",
+           "subtract_shadow_volumes"]
 
 
 @dataclass
@@ -230,33 +232,51 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     return keep[meets], covered[meets]
 
 
-def _expand(owner: np.ndarray, ptr: np.ndarray, values: np.ndarray):
-    """For every ``owner[b]``, all ``values[ptr[o]:ptr[o+1]]``: returns ``(b (P,), value (P,))``."""
-    n = ptr[owner + 1] - ptr[owner]
-    b = np.repeat(np.arange(len(owner)), n)
-    pos = np.arange(len(b)) - np.repeat(np.cumsum(n) - n, n) + np.repeat(ptr[owner], n)
-    return b, values[pos]
+@dataclass
+class Coverage:
+    """What the merged faces (clusters) and their tiles tell before any polygon is looked at.
 
-
-def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: Occluders, scene, points):
-    """Occluders of every candidate that can hide part of it, nearest first (sec. 3.4 culling).
-
-    Two levels. First every occluder (a merged face: the *cluster* of its member polygons) is tested
-    against every other occluder's shadow volume; a cluster wholly inside a volume has all its members
-    hidden, and as an occluder it is redundant (its shadow volume lies inside the other's), so it is
-    dropped. Then only the member polygons of clusters that straddle a volume are tested against that
-    volume. Each test (see :func:`_test_pairs`) needs the body to have a vertex strictly beyond the
-    occluder's plane, on the side away from P (precomputed per scene, per side).
-
-    Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances per candidate) and ``hidden (C,)``:
-    candidates wholly inside one shadow volume, which need no further work.
+    Attributes (Q: shadow-volume instances, I: (receiver, tile) instances):
+        cluster_covered: (Q,) the cluster of instance q lies wholly inside another volume: all its
+            members are hidden, and its own volume is redundant.
+        k_ptr (Q+1,), kq: CSR lists of the non-redundant volumes that cut each cluster instance.
+        t_tab: (m, T) tile instance of every (receiver, tile) of a merged face, or -1.
+        t_cov: (I,) tile instance wholly inside one volume; t_ptr (I+1,), t_q: the volumes that cut it.
+        hidden_tiles: (m, T) bool — tiles whose every member is hidden from the receiver.
+        ax_o, half_o: (Q, 3), (Q,) bounding cones of the volumes' occluders seen from their receivers.
     """
-    c_n, n_q, n_o = len(cand.point), sv.n_base, occ.n
-    if c_n == 0 or n_q == 0:
-        return np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(c_n, dtype=bool)
-    # bounding cones seen from P, once per body
+
+    cluster_covered: np.ndarray
+    k_ptr: np.ndarray
+    kq: np.ndarray
+    t_tab: np.ndarray
+    t_cov: np.ndarray
+    t_ptr: np.ndarray
+    t_q: np.ndarray
+    hidden_tiles: np.ndarray
+    ax_o: np.ndarray
+    half_o: np.ndarray
+
+
+def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Coverage:
+    """Levels 1 and 1.5 of the culling hierarchy (sec. 3.4), before any member polygon is gathered.
+
+    Level 1: every occluder (a merged face: the *cluster* of its member polygons) is tested against
+    every other occluder's shadow volume; a cluster wholly inside a volume has all its members hidden,
+    and as an occluder it is redundant (its shadow volume lies inside the other's), so it is dropped.
+    Level 1.5: the tiles (sec. 3.4's voxels) of large clusters are tested, by the corners of their
+    bounding boxes, against their cluster's cutting volumes. Each test (see :func:`_test_pairs`) needs
+    the body to have a vertex strictly beyond the occluder's plane, on the side away from P.
+    """
+    n_q, n_o, m = sv.n_base, occ.n, len(points)
+    n_tiles = len(occ.tile_occluder)
     o_rel = occ.centers[sv.occluder] - points[sv.point]
     ax_o, half_o, _ = _cone(o_rel, occ.radii[sv.occluder])
+    if n_q == 0:
+        e = np.zeros(0, dtype=np.int64)
+        return Coverage(np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e, np.full((m, n_tiles), -1),
+                        np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e,
+                        np.zeros((m, n_tiles), dtype=bool), ax_o, half_o)
 
     # level 1: clusters (occluder instances) against shadow volumes, dense over (instance, occluder)
     k_occ = sv.occluder[:n_q]
@@ -283,12 +303,9 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
     np.add.at(k_ptr, k_idx + 1, 1)
     k_ptr = np.cumsum(k_ptr)
 
-    # level 1.5: tiles (sec. 3.4's voxels) of large clusters against their cluster's cutting volumes,
-    # tested by the corners of their bounding boxes
-    n_tiles = len(occ.tile_occluder)
-    tiled = np.bincount(occ.members, minlength=n_o)[occ.tile_occluder] > 1  # (T,) tile of a merged face
+    # level 1.5: tiles of large clusters against their cluster's cutting volumes
+    tiled = np.bincount(occ.members, minlength=n_o)[occ.tile_occluder] > 1     # (T,) tile of a merged face
     t_live = np.flatnonzero(tiled)
-    m = len(points)
     t_tab = np.full((m, n_tiles), -1, dtype=np.int64)
     t_ptr = np.zeros(1, dtype=np.int64)
     t_q = np.zeros(0, dtype=np.int64)
@@ -304,7 +321,7 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
         corners = occ.tile_corners[tile] - points[tp][:, None, :]              # (I, 8, 3)
         t_rel = occ.tile_centers[tile] - points[tp]
         ax_t, half_t, _ = _cone(t_rel, occ.tile_radii[tile])
-        tb, tq = _expand(tk, k_ptr, kq)
+        tb, tq = expand(tk, k_ptr, kq)
         t_inf = None if sv.inf is None else np.broadcast_to(sv.inf[tk][:, :1], corners.shape).copy()
         kept, cov = _test_pairs(tb, tq, corners, t_inf, np.full(len(tp), 8), t_rel, occ.tile_radii[tile], sv,
                                 ax_t, half_t, ax_o, half_o)
@@ -319,18 +336,37 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
         np.add.at(t_ptr, tb + 1, 1)
         t_ptr = np.cumsum(t_ptr)
 
-    # level 2: member polygons of straddling clusters (or tiles) against those volumes
+    k_t = table[:, occ.tile_occluder]                                            # (m, T)
+    hidden_tiles = (k_t >= 0) & np.append(cluster_covered, False)[k_t]
+    hidden_tiles |= (t_tab >= 0) & np.append(t_cov, False)[t_tab]
+    return Coverage(cluster_covered, k_ptr, kq, t_tab, t_cov, t_ptr, t_q, hidden_tiles, ax_o, half_o)
+
+
+def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: Coverage, occ: Occluders, scene,
+                   points):
+    """Occluders of every candidate that can hide part of it, nearest first (level 2 of sec. 3.4).
+
+    Only the member polygons of clusters (or tiles) that straddle a volume are tested against that
+    volume (see :func:`coverage`); each test (see :func:`_test_pairs`) needs the body to have a vertex
+    strictly beyond the occluder's plane, on the side away from P (precomputed per scene, per side).
+
+    Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances per candidate) and ``hidden (C,)``:
+    candidates wholly inside one shadow volume, which need no further work.
+    """
+    c_n, n_q = len(cand.point), sv.n_base
+    if c_n == 0 or n_q == 0:
+        return np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(c_n, dtype=bool)
     k_of = table[cand.point, occ.members[cand.poly]]                            # (C,) cluster instance
-    ti = t_tab[cand.point, occ.tile_of[cand.poly]]                              # (C,) tile instance or -1
+    ti = cov.t_tab[cand.point, occ.tile_of[cand.poly]]                          # (C,) tile instance or -1
     hidden = np.zeros(c_n, dtype=bool)
     found = k_of >= 0
-    hidden[found] = cluster_covered[k_of[found]]
+    hidden[found] = cov.cluster_covered[k_of[found]]
     by_tile = ti >= 0
-    hidden[by_tile] |= t_cov[ti[by_tile]]
+    hidden[by_tile] |= cov.t_cov[ti[by_tile]]
     from_cluster = np.flatnonzero(found & ~by_tile & ~hidden)
     from_tile = np.flatnonzero(by_tile & ~hidden)
-    b1, q1 = _expand(k_of[from_cluster], k_ptr, kq)
-    b2, q2 = _expand(ti[from_tile], t_ptr, t_q)
+    b1, q1 = expand(k_of[from_cluster], cov.k_ptr, cov.kq)
+    b2, q2 = expand(ti[from_tile], cov.t_ptr, cov.t_q)
     body = np.concatenate([from_cluster[b1], from_tile[b2]])
     q = np.concatenate([q1, q2])
     if (~found).any():  # a candidate whose cluster was culled (numerically at the horizon): all volumes
@@ -347,7 +383,7 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
         body, q = body[beyond], q[beyond]
     if len(occ.coplanar_occ):
         # coplanar overlapping surfaces: the one facing P wins, then the lower input index
-        cb, co = _expand(cand.poly, occ.coplanar_ptr, occ.coplanar_occ)
+        cb, co = expand(cand.poly, occ.coplanar_ptr, occ.coplanar_occ)
         cq = table[cand.point[cb], co]
         ok = (cq >= 0) & ~hidden[cb]
         cb, co, cq = cb[ok], co[ok], cq[ok]
@@ -358,10 +394,10 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, occ: 
         q = np.concatenate([q, cq[wins] + sv.n_base])                          # the cone-only copy
     c_rel = scene.poly_centers[cand.poly] - points[cand.point]
     ax_c, half_c, _ = _cone(c_rel, scene.poly_radii[cand.poly])
-    kept, cov = _test_pairs(body, q, cand.verts, cand.inf, cand.counts, c_rel, scene.poly_radii[cand.poly], sv,
-                            ax_c, half_c, ax_o, half_o)
+    kept, covd = _test_pairs(body, q, cand.verts, cand.inf, cand.counts, c_rel, scene.poly_radii[cand.poly], sv,
+                             ax_c, half_c, cov.ax_o, cov.half_o)
     body, q = body[kept], q[kept]
-    hidden[body[cov]] = True
+    hidden[body[covd]] = True
     keep = ~hidden[body]
     body, q = body[keep], q[keep]
     order = np.lexsort((sv.near[q], body))

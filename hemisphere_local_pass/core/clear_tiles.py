@@ -1,0 +1,219 @@
+"""Clear tiles: the fast path for the parts of a scene that nothing cuts (sec. 3.4's payoff).
+
+Most of what a receiver sees in a subdivided scene is whole polygons: tiles (see :mod:`.culling`) wholly
+above the horizon that no shadow volume meets. Their visible fragments are the polygons themselves, so
+the visibility stage has nothing to do for them, and eq. 4 can be summed over *edges* rather than over
+polygons: an edge shared by two members of a tile appears in both contours with opposite directions,
+so its term is computed once and credited to both (``+t`` to the member that runs it forwards, ``-t``
+to the other). For irradiance the members' radiances fold into one weight per edge,
+``W_e = Σ_i σ_ei L_i``, and ``Σ_i L_i F_i = side / 2π · Σ_e W_e t_e``: no per-polygon sum at all.
+
+A (receiver, tile) pair takes this path only when the answer is certain to be the one the general path
+would give: the tile's merged face has a shadow-volume instance that no volume cuts (levels 1 and 1.5
+of :func:`.visibility.coverage`), all corners of the tile's bounding box lie clearly above the horizon
+and P clearly off the tile's plane (margins far above rounding), the receiver is not in a one-sided
+limit, and the tile's members have no duplicates or coplanar overlaps. Everything else goes the general
+way, so exactness never depends on this path's margins.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .csr import expand
+
+__all__ = ["ClearPairs", "TileEdges", "clear_pairs", "clear_form_factors", "clear_irradiance", "tile_edges"]
+
+_INV_2PI = 1.0 / (2.0 * np.pi)
+
+#: relative margins (of the receiver-to-tile distance) that make a pair's horizon and side decisions
+#: certain: far above PLANE_EPS (1e-12) and any rounding of the inputs
+HORIZON_MARGIN = 1e-9
+SIDE_MARGIN = 1e-9
+
+
+@dataclass
+class TileEdges:
+    """Per-scene edge structure of every tile (static, built once).
+
+    Attributes:
+        vertices: (V, 3) the tiles' vertices, welded by exact coordinates within each tile.
+        edge_ptr: (T+1,) CSR ranges of each tile's unique edges; edge_a, edge_b: (E,) their end points
+            (indices into ``vertices``; a shared edge is stored once, from its lower to its higher index).
+        inc_ptr: (T+1,) CSR ranges of each tile's (member, edge) incidences; inc_edge: (I,) edge index
+            local to the tile; inc_poly: (I,) member polygon; inc_slot: (I,) the member's position in
+            the tile's member list (``occ.tile_members``); inc_sign: (I,) +1 if the member runs the
+            edge from a to b, -1 if from b to a.
+        weight: (E, 3) ``Σ_i σ_ei L_i`` over the members of the edge's tile (constant radiance), or None.
+        eligible: (T,) tiles whose members have no duplicates and no coplanar overlaps.
+        plane_normal: (T, 3) unit normal of each tile's plane; plane_point: (T, 3) a vertex on it.
+    """
+
+    vertices: np.ndarray
+    edge_ptr: np.ndarray
+    edge_a: np.ndarray
+    edge_b: np.ndarray
+    inc_ptr: np.ndarray
+    inc_edge: np.ndarray
+    inc_poly: np.ndarray
+    inc_slot: np.ndarray
+    inc_sign: np.ndarray
+    weight: np.ndarray | None
+    eligible: np.ndarray
+    plane_normal: np.ndarray
+    plane_point: np.ndarray
+
+
+def tile_edges(scene, occ) -> TileEdges:
+    """Weld every tile's members and list their unique edges (see :class:`TileEdges`)."""
+    n_t = len(occ.tile_occluder)
+    verts_all, ea_all, eb_all, ie_all, ip_all, is_all, sl_all = [], [], [], [], [], [], []
+    edge_ptr = np.zeros(n_t + 1, dtype=np.int64)
+    inc_ptr = np.zeros(n_t + 1, dtype=np.int64)
+    copies = np.bincount(scene.dup_rep, minlength=scene.n_polygons) if scene.n_polygons else np.zeros(0, int)
+    no_cop = np.diff(occ.coplanar_ptr) == 0
+    eligible = np.zeros(n_t, dtype=bool)
+    v_base = 0
+    for t in range(n_t):
+        mem = occ.tile_members[occ.tile_ptr[t]:occ.tile_ptr[t + 1]]
+        eligible[t] = len(mem) > 0 and bool(((scene.dup_rep[mem] == mem) & (copies[mem] == 1) & no_cop[mem]).all())
+        cnt = scene.poly_counts[mem]
+        k = scene.poly_vertices.shape[1]
+        valid = np.arange(k)[None, :] < cnt[:, None]
+        pts = scene.poly_vertices[mem][valid]                                    # (sum counts, 3)
+        uniq, inv = np.unique(pts, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        # corner j of member r -> welded index; next corner cyclically
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        local = np.arange(len(pts)) - np.repeat(starts, cnt)
+        nxt = np.where(local + 1 < np.repeat(cnt, cnt), np.arange(len(pts)) + 1, np.repeat(starts, cnt))
+        a, b = inv, inv[nxt]
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        keys, e_inv = np.unique(lo * len(uniq) + hi, return_inverse=True)
+        e_inv = e_inv.reshape(-1)
+        verts_all.append(uniq)
+        ea_all.append(keys // len(uniq) + v_base)
+        eb_all.append(keys % len(uniq) + v_base)
+        ie_all.append(e_inv)
+        ip_all.append(np.repeat(mem, cnt))
+        sl_all.append(np.repeat(np.arange(len(mem)), cnt))
+        is_all.append(np.where(a == lo, 1.0, -1.0))
+        v_base += len(uniq)
+        edge_ptr[t + 1] = edge_ptr[t] + len(keys)
+        inc_ptr[t + 1] = inc_ptr[t] + len(pts)
+
+    def cat(parts, dtype):
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype=dtype)
+
+    inc_edge, inc_poly, inc_sign = cat(ie_all, np.int64), cat(ip_all, np.int64), cat(is_all, np.float64)
+    inc_slot = cat(sl_all, np.int64)
+    weight = None
+    if not scene.linear:
+        # fold the members' radiances into their edges: W_e = Σ σ L over the incidences of edge e
+        glob = inc_edge + np.repeat(edge_ptr[:-1], np.diff(inc_ptr))
+        weight = np.zeros((int(edge_ptr[-1]), 3))
+        np.add.at(weight, glob, inc_sign[:, None] * scene.poly_radiance[inc_poly])
+    first = occ.tile_members[occ.tile_ptr[:-1]] if n_t else np.zeros(0, dtype=np.int64)
+    return TileEdges(cat(verts_all, np.float64).reshape(-1, 3), edge_ptr, cat(ea_all, np.int64), cat(eb_all, np.int64),
+                     inc_ptr, inc_edge, inc_poly, inc_slot, inc_sign, weight, eligible,
+                     scene.poly_normals[first], scene.poly_vertices[first, 0])
+
+
+@dataclass
+class ClearPairs:
+    """(receiver, tile) pairs taking the fast path: point (P,), tile (P,), side (P,) float ±1 (+1: P
+    behind the tile's plane, as :attr:`.projection.Candidates.side`); ``mask (m, T)`` the same pairs."""
+
+    point: np.ndarray
+    tile: np.ndarray
+    side: np.ndarray
+    mask: np.ndarray
+
+
+def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> ClearPairs:
+    """Pairs whose tile is whole, visible and uncut for certain (see the module docstring)."""
+    m, n_t = len(points), len(occ.tile_occluder)
+    k = table[:, occ.tile_occluder]                                              # (m, T) cluster instance
+    ks = np.maximum(k, 0)
+    ok = (k >= 0) & te.eligible[None]
+    if len(cov.cluster_covered):
+        ok &= ~cov.cluster_covered[ks]
+        uncut_cluster = cov.k_ptr[ks + 1] == cov.k_ptr[ks]
+        ti = cov.t_tab                                                           # (m, T) tile instance
+        n_cut = np.append(np.diff(cov.t_ptr), 1)[ti]                             # ti = -1: "cut" (unknown)
+        uncut_tile = (n_cut == 0) & ~np.append(cov.t_cov, True)[ti]
+        ok &= uncut_cluster | uncut_tile
+    if limit is not None:
+        ok &= ~limit.any(axis=1)[:, None]
+    tp, tt = np.nonzero(ok)
+    corners = occ.tile_corners[tt] - points[tp][:, None, :]                      # (P, 8, 3)
+    height = np.matmul(corners, normals[tp][:, :, None])[..., 0]                 # (P, 8)
+    rel = occ.tile_centers[tt] - points[tp]
+    scale = np.sqrt((rel * rel).sum(axis=1)) + occ.tile_radii[tt]
+    d = (te.plane_normal[tt] * (te.plane_point[tt] - points[tp])).sum(axis=1)
+    sure = (height.min(axis=1) > HORIZON_MARGIN * scale) & (np.abs(d) > SIDE_MARGIN * scale)
+    tp, tt, d = tp[sure], tt[sure], d[sure]
+    mask = np.zeros((m, n_t), dtype=bool)
+    mask[tp, tt] = True
+    return ClearPairs(tp, tt, np.sign(d), mask)
+
+
+def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
+    """Eq. 4's term of every unique edge of every pair: ``(owner pair (E',), global edge (E',), t (E',))``."""
+    b, e = expand(pairs.tile, te.edge_ptr, np.arange(len(te.edge_a)))
+    p = pairs.point[b]
+    a = te.vertices[te.edge_a[e]] - points[p]
+    c = te.vertices[te.edge_b[e]] - points[p]
+    ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
+    ex, ey, ez = c[:, 0] - ax, c[:, 1] - ay, c[:, 2] - az                       # a × b as a × (b − a)
+    cx = ay * ez - az * ey
+    cy = az * ex - ax * ez
+    cz = ax * ey - ay * ex
+    s = np.sqrt(cx * cx + cy * cy + cz * cz)
+    d = (a * c).sum(axis=1)
+    ratio = np.divide(np.arctan2(s, d), s, out=np.zeros_like(s), where=s > 0.0)
+    nrm = normals[p]
+    t = (cx * nrm[:, 0] + cy * nrm[:, 1] + cz * nrm[:, 2]) * ratio
+    return b, e, t
+
+
+def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_sided: bool) -> np.ndarray:
+    """``Σ_i L_i F_i`` over the members of the clear tiles, ``(m, 3)`` (front-lit only unless double-sided)."""
+    out = np.zeros((len(points), 3))
+    if not len(pairs.point):
+        return out
+    b, e, t = _edge_terms(te, pairs, points, normals)
+    lit = np.ones(len(pairs.point), dtype=bool) if double_sided else pairs.side < 0
+    w = np.where(lit[b], pairs.side[b] * _INV_2PI * t, 0.0)
+    for c in range(3):
+        out[:, c] = np.bincount(pairs.point[b], weights=w * te.weight[e, c], minlength=len(points))
+    return out
+
+
+def clear_form_factors(te: TileEdges, occ, pairs: ClearPairs, points, normals):
+    """Form factor of every member of the clear tiles: ``point, poly, side, ff, cond`` (each (R,)).
+
+    ``cond`` is each member's ``Σ|t_e| / |Σ t_e|`` (the cancellation of its edge terms), for the
+    caller's extended-precision check (see :func:`.form_factor.contour_integral`).
+    """
+    if not len(pairs.point):
+        z = np.zeros(0, dtype=np.int64)
+        return z, z, np.zeros(0), np.zeros(0), np.zeros(0)
+    b, _, t = _edge_terms(te, pairs, points, normals)
+    n_edges = np.diff(te.edge_ptr)[pairs.tile]
+    e_start = np.cumsum(n_edges) - n_edges                                       # first term of each pair
+    ib, inc = expand(pairs.tile, te.inc_ptr, np.arange(len(te.inc_edge)))
+    term = te.inc_sign[inc] * t[e_start[ib] + te.inc_edge[inc]]
+    # one row per (pair, member): members are numbered within their tile by inc_slot
+    n_mem = np.diff(occ.tile_ptr)[pairs.tile]
+    m_start = np.cumsum(n_mem) - n_mem
+    row = m_start[ib] + te.inc_slot[inc]
+    n_rows = int(n_mem.sum())
+    total = np.bincount(row, weights=term, minlength=n_rows)
+    mag = np.bincount(row, weights=np.abs(term), minlength=n_rows)
+    rb, member = expand(pairs.tile, occ.tile_ptr, occ.tile_members)
+    side = pairs.side[rb]
+    cond = np.divide(mag, np.abs(total), out=np.full_like(mag, np.inf), where=total != 0)
+    return pairs.point[rb], member, side, side * _INV_2PI * total, cond
