@@ -49,6 +49,7 @@ class TileEdges:
         weight: (E, 3) ``Σ_i σ_ei L_i`` over the members of the edge's tile (constant radiance), or None.
         eligible: (T,) tiles whose members have no duplicates and no coplanar overlaps.
         plane_normal: (T, 3) unit normal of each tile's plane; plane_point: (T, 3) a vertex on it.
+        a_xyz, b_xyz: (3, E) the edges' end points as component rows (for contiguous gathers).
     """
 
     vertices: np.ndarray
@@ -64,6 +65,12 @@ class TileEdges:
     eligible: np.ndarray
     plane_normal: np.ndarray
     plane_point: np.ndarray
+    a_xyz: np.ndarray | None = None
+    b_xyz: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.a_xyz = np.ascontiguousarray(self.vertices[self.edge_a].T)
+        self.b_xyz = np.ascontiguousarray(self.vertices[self.edge_b].T)
 
 
 def tile_edges(scene, occ) -> TileEdges:
@@ -161,22 +168,23 @@ def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> C
 
 
 def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
-    """Eq. 4's term of every unique edge of every pair: ``(owner pair (E',), global edge (E',), t (E',))``."""
+    """Eq. 4's term of every unique edge of every pair: ``(owner pair (E',), global edge (E',), t (E',))``.
+
+    Component arrays throughout (structure of arrays): the gathers and products stay contiguous.
+    """
     b, e = expand(pairs.tile, te.edge_ptr, np.arange(len(te.edge_a)))
     p = pairs.point[b]
-    a = te.vertices[te.edge_a[e]] - points[p]
-    c = te.vertices[te.edge_b[e]] - points[p]
-    ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
-    ex, ey, ez = c[:, 0] - ax, c[:, 1] - ay, c[:, 2] - az                       # a × b as a × (b − a)
-    cx = ay * ez - az * ey
+    px, py, pz = (np.ascontiguousarray(points[:, i])[p] for i in range(3))
+    ax, ay, az = te.a_xyz[0][e] - px, te.a_xyz[1][e] - py, te.a_xyz[2][e] - pz
+    ex, ey, ez = te.b_xyz[0][e] - px - ax, te.b_xyz[1][e] - py - ay, te.b_xyz[2][e] - pz - az  # b − a
+    cx = ay * ez - az * ey                                                       # a × b as a × (b − a)
     cy = az * ex - ax * ez
     cz = ax * ey - ay * ex
     s = np.sqrt(cx * cx + cy * cy + cz * cz)
-    d = (a * c).sum(axis=1)
+    d = ax * (ax + ex) + ay * (ay + ey) + az * (az + ez)                         # a · b
     ratio = np.divide(np.arctan2(s, d), s, out=np.zeros_like(s), where=s > 0.0)
-    nrm = normals[p]
-    t = (cx * nrm[:, 0] + cy * nrm[:, 1] + cz * nrm[:, 2]) * ratio
-    return b, e, t
+    nx, ny, nz = (np.ascontiguousarray(normals[:, i])[p] for i in range(3))
+    return b, e, (cx * nx + cy * ny + cz * nz) * ratio
 
 
 def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_sided: bool) -> np.ndarray:
