@@ -187,16 +187,29 @@ def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
     return b, e, (cx * nx + cy * ny + cz * nz) * ratio
 
 
+#: edge terms per batch: keeps the fast path's temporaries (~20 arrays of this length) in cache
+EDGE_BATCH = 2**14
+
+
+def _batches(te: TileEdges, pairs: ClearPairs):
+    """Consecutive slices of ``pairs`` with about :data:`EDGE_BATCH` edge terms each."""
+    ends = np.cumsum(np.diff(te.edge_ptr)[pairs.tile])
+    cuts = np.searchsorted(ends, np.arange(EDGE_BATCH, ends[-1] if len(ends) else 0, EDGE_BATCH), side="right")
+    bounds = np.unique(np.concatenate([[0], cuts, [len(pairs.point)]]))
+    for s, e in zip(bounds[:-1], bounds[1:]):
+        yield ClearPairs(pairs.point[s:e], pairs.tile[s:e], pairs.side[s:e], pairs.mask)
+
+
 def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_sided: bool) -> np.ndarray:
     """``Σ_i L_i F_i`` over the members of the clear tiles, ``(m, 3)`` (front-lit only unless double-sided)."""
     out = np.zeros((len(points), 3))
-    if not len(pairs.point):
-        return out
-    b, e, t = _edge_terms(te, pairs, points, normals)
     lit = np.ones(len(pairs.point), dtype=bool) if double_sided else pairs.side < 0
-    w = np.where(lit[b], pairs.side[b] * _INV_2PI * t, 0.0)
-    for c in range(3):
-        out[:, c] = np.bincount(pairs.point[b], weights=w * te.weight[e, c], minlength=len(points))
+    pairs = ClearPairs(pairs.point[lit], pairs.tile[lit], pairs.side[lit], pairs.mask)   # the rest emit nothing
+    for sub in _batches(te, pairs):
+        b, e, t = _edge_terms(te, sub, points, normals)
+        n_edges = np.diff(te.edge_ptr)[sub.tile]
+        per_pair = np.add.reduceat(t[:, None] * te.weight[e], np.cumsum(n_edges) - n_edges, axis=0)   # (P', 3)
+        np.add.at(out, sub.point, (sub.side * _INV_2PI)[:, None] * per_pair)
     return out
 
 
@@ -206,9 +219,15 @@ def clear_form_factors(te: TileEdges, occ, pairs: ClearPairs, points, normals):
     ``cond`` is each member's ``Σ|t_e| / |Σ t_e|`` (the cancellation of its edge terms), for the
     caller's extended-precision check (see :func:`.form_factor.contour_integral`).
     """
-    if not len(pairs.point):
+    parts = [_clear_form_factors(te, occ, sub, points, normals) for sub in _batches(te, pairs)]
+    if not parts:
         z = np.zeros(0, dtype=np.int64)
         return z, z, np.zeros(0), np.zeros(0), np.zeros(0)
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
+def _clear_form_factors(te: TileEdges, occ, pairs: ClearPairs, points, normals):
+    """One batch of :func:`clear_form_factors`."""
     b, _, t = _edge_terms(te, pairs, points, normals)
     n_edges = np.diff(te.edge_ptr)[pairs.tile]
     e_start = np.cumsum(n_edges) - n_edges                                       # first term of each pair
