@@ -304,7 +304,9 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     k_ptr = np.cumsum(k_ptr)
 
     # level 1.5: tiles of large clusters against their cluster's cutting volumes
-    tiled = np.bincount(occ.members, minlength=n_o)[occ.tile_occluder] > 1     # (T,) tile of a merged face
+    # (T,) tiles of merged faces split into several tiles (a face's only tile would repeat level 1)
+    tiled = (np.bincount(occ.members, minlength=n_o)[occ.tile_occluder] > 1) & (
+        np.bincount(occ.tile_occluder, minlength=n_o)[occ.tile_occluder] > 1)
     t_live = np.flatnonzero(tiled)
     t_tab = np.full((m, n_tiles), -1, dtype=np.int64)
     t_ptr = np.zeros(1, dtype=np.int64)
@@ -551,3 +553,4 @@ def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
     if v.shape[1] > width:
         return v[:, :width]
     return np.concatenate([v, np.repeat(v[:, -1:], width - v.shape[1], axis=1)], axis=1)
+
