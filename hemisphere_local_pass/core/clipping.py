@@ -49,7 +49,15 @@ def classify(s_re: np.ndarray, eps: np.ndarray, s_inf: np.ndarray | None = None)
 def pad_repeat_last(verts: np.ndarray, counts: np.ndarray, width: int) -> np.ndarray:
     """Re-pad ``verts (F, K, 3)`` to ``(F, width, 3)`` repeating the last real vertex (counts >= 1)."""
     idx = np.minimum(np.arange(width)[None, :], np.maximum(counts, 1)[:, None] - 1)
-    return np.take_along_axis(verts, idx[:, :, None], axis=1)
+    return _gather_slots(verts, idx)
+
+
+def _gather_slots(verts: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``verts[f, idx[f, w]]`` for ``verts (F, K, 3)``, ``idx (F, W)``: one flat gather (faster than
+    ``take_along_axis``, which broadcasts index grids)."""
+    f, k, _ = verts.shape
+    flat = (np.arange(f)[:, None] * k + idx).ravel()
+    return verts.reshape(-1, 3)[flat].reshape(f, idx.shape[1], 3)
 
 
 def _resolve_isolated_zeros(side: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -76,13 +84,14 @@ def _resolve_isolated_zeros(side: np.ndarray, counts: np.ndarray) -> np.ndarray:
 
 
 def _compact(cand: np.ndarray, keep: np.ndarray, width: int):
-    """Pack the kept slots of ``cand (F, S, 3)`` left, padded to ``width`` by repeating the last."""
+    """Pack the kept slots of ``cand (F, S, 3)`` left, padded to ``width`` by repeating the last
+    (``width <= S``); rows with nothing kept are all zeros."""
     counts = keep.sum(axis=1)
-    out = np.zeros((cand.shape[0], width, 3))
-    rows, cols = np.nonzero(keep)
-    pos = (np.cumsum(keep, axis=1) - 1)[rows, cols]
-    out[rows, pos] = cand[rows, cols]
-    return pad_repeat_last(out, counts, width), counts
+    order = np.argsort(~keep, axis=1, kind="stable")                  # kept slots first, in order
+    rank = np.minimum(np.arange(width)[None, :], np.maximum(counts, 1)[:, None] - 1)
+    out = _gather_slots(cand, np.take_along_axis(order, rank, axis=1))
+    out[counts == 0] = 0.0
+    return out, counts
 
 
 def split_convex(
