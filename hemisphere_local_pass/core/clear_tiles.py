@@ -10,8 +10,8 @@ to the other). For irradiance the members' radiances fold into one weight per ed
 
 A (receiver, tile) pair takes this path only when the answer is certain to be the one the general path
 would give: the tile's merged face has a shadow-volume instance that no volume cuts (levels 1 and 1.5
-of :func:`.visibility.coverage`), all corners of the tile's bounding box lie clearly above the horizon
-and P clearly off the tile's plane (margins far above rounding), the receiver is not in a one-sided
+of :func:`.visibility.coverage`), no corner of the tile's bounding box lies below the horizon by more
+than the general path's tolerance (so no member needs clipping) and P is clearly off the tile's plane, the receiver is not in a one-sided
 limit, and the tile's members have no duplicates or coplanar overlaps. Everything else goes the general
 way, so exactness never depends on this path's margins.
 """
@@ -23,14 +23,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .csr import expand
+from .tolerances import PLANE_EPS
 
 __all__ = ["ClearPairs", "TileEdges", "clear_pairs", "clear_form_factors", "clear_irradiance", "tile_edges"]
 
 _INV_2PI = 1.0 / (2.0 * np.pi)
 
-#: relative margins (of the receiver-to-tile distance) that make a pair's horizon and side decisions
-#: certain: far above PLANE_EPS (1e-12) and any rounding of the inputs
-HORIZON_MARGIN = 1e-9
+#: relative margin (of the receiver-to-tile distance) that makes a pair's side decision certain: far
+#: above PLANE_EPS (1e-12) and any rounding of the inputs
 SIDE_MARGIN = 1e-9
 
 
@@ -160,7 +160,11 @@ def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> C
     rel = occ.tile_centers[tt] - points[tp]
     scale = np.sqrt((rel * rel).sum(axis=1)) + occ.tile_radii[tt]
     d = (te.plane_normal[tt] * (te.plane_point[tt] - points[tp])).sum(axis=1)
-    sure = (height.min(axis=1) > HORIZON_MARGIN * scale) & (np.abs(d) > SIDE_MARGIN * scale)
+    # no member vertex below the horizon by more than half the general path's on-plane tolerance
+    # (PLANE_EPS × a member's scale, which is at least the distance to the tile's nearest point):
+    # the general path would not clip any member (walls rising from the receiver's floor qualify)
+    near = np.maximum(scale - 2.0 * occ.tile_radii[tt], 0.0)
+    sure = (height.min(axis=1) >= -0.5 * PLANE_EPS * near) & (np.abs(d) > SIDE_MARGIN * scale)
     tp, tt, d = tp[sure], tt[sure], d[sure]
     mask = np.zeros((m, n_t), dtype=bool)
     mask[tp, tt] = True
