@@ -16,20 +16,22 @@ from hemisphere_local_pass.core.clear_tiles import tile_edges
 from hemisphere_local_pass.scenes import cornell_box
 
 
-@pytest.fixture(scope="module")
-def case():
+@pytest.fixture(scope="module", params=[1e-6, 0.0], ids=["off_surface", "on_surface"])
+def case(request):
     rng = np.random.default_rng(7)
     box = cornell_box(20)
     radiance = rng.uniform(0.0, 2.0, size=(box.n_polygons, 3))
     scene = box.scene(radiance=radiance)
-    # receivers on random polygons, just off their front side, facing along the polygon normal
+    # receivers on random polygons (on them, or just off their front side), facing along the normal:
+    # on the surface, the tiles of the walls rising from it touch the horizon and still take the
+    # fast path
     pick = rng.choice(box.n_polygons, size=300)
     u, v = rng.uniform(0.05, 0.95, size=(2, len(pick)))
     quads = box.vertices[np.array([box.polygons[i] for i in pick])]                # (m, 4, 3)
     pts = (1 - u)[:, None] * ((1 - v)[:, None] * quads[:, 0] + v[:, None] * quads[:, 1]) \
         + u[:, None] * ((1 - v)[:, None] * quads[:, 3] + v[:, None] * quads[:, 2])
     nrm = box.normals()[pick]
-    return scene, pts + 1e-6 * nrm, nrm
+    return scene, pts + request.param * nrm, nrm
 
 
 def general_path(scene, pts, nrm):
