@@ -11,9 +11,9 @@ to the other). For irradiance the members' radiances fold into one weight per ed
 A (receiver, tile) pair takes this path only when the answer is certain to be the one the general path
 would give: the tile's merged face has a shadow-volume instance that no volume cuts (levels 1 and 1.5
 of :func:`.visibility.coverage`), no corner of the tile's bounding box lies below the horizon by more
-than the general path's tolerance (so no member needs clipping) and P is clearly off the tile's plane, the receiver is not in a one-sided
-limit, and the tile's members have no duplicates or coplanar overlaps. Everything else goes the general
-way, so exactness never depends on this path's margins.
+than the general path's tolerance (so no member needs clipping), P is clearly off the tile's plane,
+the receiver is not in a one-sided limit, and the tile's members have no duplicates or coplanar
+overlaps. Everything else goes the general way, so exactness never depends on this path's margins.
 """
 
 from __future__ import annotations
@@ -180,12 +180,15 @@ def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
     p = pairs.point[b]
     px, py, pz = (np.ascontiguousarray(points[:, i])[p] for i in range(3))
     ax, ay, az = te.a_xyz[0][e] - px, te.a_xyz[1][e] - py, te.a_xyz[2][e] - pz
-    ex, ey, ez = te.b_xyz[0][e] - px - ax, te.b_xyz[1][e] - py - ay, te.b_xyz[2][e] - pz - az  # b − a
+    bx, by, bz = te.b_xyz[0][e] - px, te.b_xyz[1][e] - py, te.b_xyz[2][e] - pz
+    ex, ey, ez = bx - ax, by - ay, bz - az
     cx = ay * ez - az * ey                                                       # a × b as a × (b − a)
     cy = az * ex - ax * ez
     cz = ax * ey - ay * ex
     s = np.sqrt(cx * cx + cy * cy + cz * cz)
-    d = ax * (ax + ex) + ay * (ay + ey) + az * (az + ez)                         # a · b
+    # a · b from b itself: a + (b − a) would lose the digits of a short b next to a long a (an edge
+    # passing close to P), and atan2 needs them there
+    d = ax * bx + ay * by + az * bz
     ratio = np.divide(np.arctan2(s, d), s, out=np.zeros_like(s), where=s > 0.0)
     nx, ny, nz = (np.ascontiguousarray(normals[:, i])[p] for i in range(3))
     return b, e, (cx * nx + cy * ny + cz * nz) * ratio

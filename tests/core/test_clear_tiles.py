@@ -86,3 +86,25 @@ def test_tile_edges_weld_and_orient():
             assert sorted(a.tolist()) == sorted(b.tolist())                  # a closed loop
             k = scene.poly_counts[poly]
             assert np.allclose(np.sort(te.vertices[a], axis=0), np.sort(scene.poly_vertices[poly, :k], axis=0))
+
+
+@pytest.mark.parametrize("d", [1e-4, 1e-6, 1e-8])
+def test_edges_passing_close_to_the_receiver(d):
+    """A receiver on the ceiling ``d`` from a corner: the walls' top edges pass within ~d of it, their
+    end points at very different distances. a · b must come from b itself (regression: a + (b − a)
+    lost b's small coordinates, and ΣF went to 1 − 1e-9 at d = 1e-8)."""
+    from scenes_for_tests import Mesh, box_face_quads
+
+    mesh = Mesh()
+    for q in box_face_quads(np.array([-2.5, -2.0, -3.0]), np.zeros(3), inward=True):
+        mesh.add(q)
+    verts, polys = mesh.arrays()
+    from hemisphere_local_pass.core import Scene
+
+    scene = Scene.from_polygons(verts, polys)
+    u = np.array([-1.0, -0.5, 0.0]) / np.sqrt(1.25)
+    p, n = (3.0 * d * u)[None], np.array([[0.0, 0.0, -1.0]])
+    f = form_factors(scene, p, n)
+    f_gen, _ = general_path(scene, p, n)
+    assert np.abs(f - f_gen).max() <= 1e-15
+    assert abs(f.sum() - 1.0) <= 1e-14
