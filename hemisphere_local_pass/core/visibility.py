@@ -474,24 +474,23 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
         scale = np.abs(work.verts).max(axis=(1, 2))
         item = np.arange(n_w)
         pieces = []
-        # sides of the unchanged fragments for every plane at once, on their own width only
+        # sides of the unchanged fragments for every plane at once, on their own width k0 only: a row
+        # not clipped yet has at most k0 vertices
         k0 = work.verts.shape[1]
-        side_all = np.zeros((n_w, j_planes, width), dtype=np.int8)
-        sre_all = np.zeros((n_w, j_planes, width))
-        sinf_all = np.zeros((n_w, j_planes, width)) if dual else None
-        sd, sr, si, eps_all = _all_plane_sides(work.verts, work.inf, cur_c, scale, sv, q_of)
-        side_all[:, :, :k0], sre_all[:, :, :k0] = sd, sr
-        if dual:
-            sinf_all[:, :, :k0] = si
+        side_all, sre_all, sinf_all, eps_all = _all_plane_sides(work.verts, work.inf, cur_c, scale, sv, q_of)
         cut_before = np.zeros(n_w, dtype=bool)
         for j in range(j_planes):
-            side, s_re, eps = side_all[item, j], sre_all[item, j], eps_all[item, j]
+            side, s_re, eps = side_all[item, j], sre_all[item, j], eps_all[item, j]   # fancy-indexed copies
             s_inf = sinf_all[item, j] if dual else None
             redo = np.flatnonzero(cut_before[item])
             if len(redo):  # these rows were clipped by an earlier plane: their vertices changed
-                sd, sr, si, ep = _plane_sides(cur_v[redo], None if not dual else cur_i[redo], cur_c[redo],
-                                              scale[item[redo]], sv, q_of[item[redo]], j)
-                side[redo], s_re[redo] = sd, sr   # fancy-indexed copies: safe to overwrite
+                kr = max(k0, int(cur_c[redo].max()))
+                sd, sr, si, ep = _plane_sides(cur_v[redo, :kr], None if not dual else cur_i[redo, :kr],
+                                              cur_c[redo], scale[item[redo]], sv, q_of[item[redo]], j)
+                if kr > k0:
+                    side, s_re = _zero_pad(side, kr), _zero_pad(s_re, kr)
+                    s_inf = _zero_pad(s_inf, kr) if dual else None
+                side[redo], s_re[redo] = sd, sr
                 if dual:
                     s_inf[redo] = si
             has_in = (side > 0).any(axis=1)
@@ -509,8 +508,6 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
                 if w > cur_v.shape[1]:  # only where rounding made a fragment cross more than twice
                     cur_v = _fit(cur_v, cur_c, w)
                     cur_i = _fit(cur_i, cur_c, w) if dual else None
-                    side_all, sre_all = _zero_pad(side_all, w), _zero_pad(sre_all, w)
-                    sinf_all = _zero_pad(sinf_all, w) if dual else None
                 cur_v[cut, :w] = iv
                 cur_v[cut, w:] = iv[:, -1:]
                 if dual:
