@@ -47,6 +47,23 @@ def _newell(verts: np.ndarray) -> np.ndarray:
     return 0.5 * np.cross(rel, nxt).sum(axis=1)
 
 
+def plane_uncertainty(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How well the Newell planes of padded polygons ``verts (g, K, 3)`` are known: ``(tilt, noise)``.
+
+    ``tilt (g,)`` is the angular uncertainty (radians) of the normal: built from vertex differences of
+    size s over an area A it is uncertain by about ulp · s² / A (negligible for a fair polygon, large for
+    a sliver, whose plane really is only known that well), plus noise · s / A for the vertices' own
+    coordinate noise. ``noise (g,)`` is that coordinate noise, ``COORD_EPS · max |x|`` (absolute).
+    A plane distance ``n · (v0 - x)`` is thus uncertain by ``tilt · |v0 - x| + noise``.
+    """
+    rel = verts - verts[:, :1]
+    area = 0.5 * np.linalg.norm(np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1), axis=1)
+    size = np.linalg.norm(rel, axis=2).max(axis=1)
+    noise = tol.COORD_EPS * np.abs(verts).max(axis=(1, 2))
+    tilt = (8 * np.finfo(np.float64).eps * size + 2 * noise) * size / np.maximum(area, np.finfo(np.float64).tiny)
+    return tilt, noise
+
+
 def _ear_clip(pts2d: np.ndarray) -> list[tuple[int, int, int]]:
     """Triangulate a simple polygon given by ``pts2d (k, 2)`` counter-clockwise; returns index triples.
 
@@ -101,6 +118,7 @@ class Scene:
             the vertex order (counter-clockwise seen from the front).
         poly_offsets: (n,) float64 plane offsets, ``poly_normals[i] . x == poly_offsets[i]``.
         poly_centers, poly_radii: (n, 3), (n,) bounding spheres.
+        poly_tilt, poly_noise: (n,), (n,) uncertainty of each polygon's plane (see :func:`plane_uncertainty`).
         poly_source: (n,) int64 input polygon each convex polygon came from.
         poly_radiance: (n, 3) float64 radiance (linear RGB, W sr^-1 m^-2); in linear mode the
             mean of the corner values.
@@ -149,6 +167,7 @@ class Scene:
                                                  self.poly_centers - self.poly_vertices[:, 0])
             d = np.linalg.norm(self.poly_vertices - self.poly_centers[:, None, :], axis=2)
             self.poly_radii = np.where(valid, d, 0.0).max(axis=1)
+            self.poly_tilt, self.poly_noise = plane_uncertainty(self.poly_vertices)
             self._find_duplicates(valid)
         else:
             self.dup_rep = self.dup_same = self.dup_opp = np.zeros(0, dtype=np.int64)
@@ -157,6 +176,8 @@ class Scene:
             self.poly_offsets = np.zeros(0)
             self.poly_center_offsets = np.zeros(0)
             self.poly_radii = np.zeros(0)
+            self.poly_tilt = np.zeros(0)
+            self.poly_noise = np.zeros(0)
 
     def _find_duplicates(self, valid: np.ndarray) -> None:
         """Identical convex polygons (same vertices, either orientation): coplanar overlapping copies.
