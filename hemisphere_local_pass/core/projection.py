@@ -21,46 +21,53 @@ import numpy as np
 
 from .clipping import split_convex
 from .scene import Scene
-from .tolerances import PLANE_EPS
+from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["Candidates", "Projection", "hemisphere_candidates", "project_point", "receiver_side"]
 
 
-def _side(d, tol, d_inf):
+def _side(d, tol, d_inf, tilt=0.0):
     """+1 / -1 / 0 (int8) from plane distances ``d`` with tolerance ``tol``; where ``d`` is within it,
-    from the first-order distances ``d_inf()`` (a callable: computed only if needed) or 0."""
+    from the first-order distances ``d_inf()`` (a callable: computed only if needed; ``-n . u``, known to
+    the plane's angular uncertainty ``tilt``) or 0."""
     side = np.where(d > tol, 1, np.where(d < -tol, -1, 0)).astype(np.int8)
     if d_inf is not None:
         on = side == 0
         if on.any():
             di = d_inf()[on]
-            side[on] = np.where(di > PLANE_EPS, 1, np.where(di < -PLANE_EPS, -1, 0))
+            tol_inf = PLANE_EPS + np.broadcast_to(tilt, side.shape)[on]
+            side[on] = np.where(di > tol_inf, 1, np.where(di < -tol_inf, -1, 0))
     return side
 
 
-def receiver_side(normals, first_vertex_rel, scale, limit):
+def receiver_side(normals, first_vertex_rel, scale, limit, tilt=0.0, noise=0.0):
     """Side of each plane the receiver is on, ``(m, n)`` int8: +1 behind (plane normal points away
     from P), -1 in front, 0 in the plane (edge-on).
 
     Args:
         normals: (n, 3) plane normals; first_vertex_rel: (m, n, 3) a plane vertex minus P;
         scale: (m, n) length scale for the tolerance; limit: (m, 3) limit directions or None.
+        tilt, noise: the planes' angular uncertainty (n,) and the absolute coordinate noise of planes
+            and receivers (broadcast to (m, n)), see :func:`.scene.plane_uncertainty`.
     """
     d = (first_vertex_rel * normals[None]).sum(axis=2)                 # n . (v0 - P)
     # at P + εu the plane distance is n.(v0 - P) - ε n.u
-    return _side(d, PLANE_EPS * scale, None if limit is None else (lambda: -(limit @ normals.T)))
+    return _side(d, (PLANE_EPS + tilt) * scale + noise, None if limit is None else (lambda: -(limit @ normals.T)),
+                 tilt)
 
 
-def plane_side(normals, rel_center, center_offset, scale, limit):
+def plane_side(normals, rel_center, center_offset, scale, limit, tilt=0.0, noise=0.0):
     """Side of each plane the receiver is on for sparse (receiver, plane) pairs, ``(C,)`` int8.
 
     Args:
         normals: (C, 3) plane normals; rel_center: (C, 3) polygon centre minus P; center_offset: (C,)
         ``n . (centre - v0)`` (the centre's rounding-level distance from its own plane); scale: (C,);
-        limit: (C, 3) limit directions or None. +1: P behind the plane, -1 in front, 0 in it.
+        limit: (C, 3) limit directions or None; tilt, noise: (C,) as for :func:`receiver_side`.
+        +1: P behind the plane, -1 in front, 0 in it.
     """
     d = (normals * rel_center).sum(axis=1) - center_offset                     # n . (v0 - P)
-    return _side(d, PLANE_EPS * scale, None if limit is None else (lambda: -(limit * normals).sum(axis=1)))
+    return _side(d, (PLANE_EPS + tilt) * scale + noise,
+                 None if limit is None else (lambda: -(limit * normals).sum(axis=1)), tilt)
 
 
 def snap_to_receiver(verts: np.ndarray, eps: np.ndarray) -> None:
@@ -112,7 +119,8 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
     cp, ci = np.nonzero(mask)
     rel_ci = rel_c[cp, ci]                                                      # (C, 3)
     side = plane_side(scene.poly_normals[ci], rel_ci, scene.poly_center_offsets[ci], scale[cp, ci],
-                      None if limit is None else limit[cp])
+                      None if limit is None else limit[cp], scene.poly_tilt[ci],
+                      scene.poly_noise[ci] + COORD_EPS * np.abs(points[cp]).max(axis=1))
     keep = side != 0
     cp, ci, side = cp[keep], ci[keep], side[keep]
     eps = PLANE_EPS * scale[cp, ci]

@@ -26,7 +26,7 @@ import numpy as np
 from .clipping import classify, split_convex
 from .culling import Occluders
 from .projection import Candidates, receiver_side, snap_to_receiver
-from .tolerances import PLANE_EPS
+from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["Fragments", "ShadowVolumes", "occluder_pairs", "shadow_volumes", "subtract_shadow_volumes"]
 
@@ -120,7 +120,9 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     rel_c = occ.centers[None] - points[:, None]                                 # (m, n_o, 3)
     dist_c = np.linalg.norm(rel_c, axis=2)
     scale = dist_c + occ.radii[None]
-    side = receiver_side(occ.normals, occ.vertices[None, :, 0] - points[:, None], scale, limit)
+    noise = 0.0 if occ.noise is None else occ.noise[None] + COORD_EPS * np.abs(points).max(axis=1)[:, None]
+    side = receiver_side(occ.normals, occ.vertices[None, :, 0] - points[:, None], scale, limit,
+                         0.0 if occ.tilt is None else occ.tilt, noise)
     # an occluder can only hide points above the horizon with its own part above the horizon
     height_c = np.matmul(rel_c, normals[:, :, None])[..., 0]
     active = (side != 0) & (height_c + occ.radii[None] > PLANE_EPS * scale)
