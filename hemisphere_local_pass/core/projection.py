@@ -20,10 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clipping import split_convex
+from .form_factor import edge_noise
 from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["Candidates", "Projection", "hemisphere_candidates", "project_point", "receiver_side"]
+__all__ = ["Candidates", "Projection", "flat_rows", "hemisphere_candidates", "project_point", "receiver_side"]
 
 
 def _side(d, tol, d_inf, tilt=0.0):
@@ -68,6 +69,20 @@ def plane_side(normals, rel_center, center_offset, scale, limit, tilt=0.0, noise
     d = (normals * rel_center).sum(axis=1) - center_offset                     # n . (v0 - P)
     return _side(d, (PLANE_EPS + tilt) * scale + noise,
                  None if limit is None else (lambda: -(limit * normals).sum(axis=1)), tilt)
+
+
+def flat_rows(normals, first_vertex_rel, tol, limit, verts):
+    """In a one-sided limit, the rows whose plane contains P within ``tol (C,)`` (their side comes from
+    the limit direction), ``(C,)`` bool; their vertices ``verts (C, K, 3)`` (P-local) are moved exactly
+    into the plane through P (in place), by at most ``tol``: seen from P + εu only directions matter,
+    and the directions of vertices a few ulp from P would otherwise be noise."""
+    d = (normals * first_vertex_rel).sum(axis=1)
+    flat = (np.abs(d) <= tol) & limit.any(axis=1)
+    if flat.any():
+        n = normals[flat]
+        v = verts[flat]
+        verts[flat] = v - np.matmul(v, n[:, :, None]) * n[:, None, :]
+    return flat
 
 
 def snap_to_receiver(verts: np.ndarray, eps: np.ndarray) -> None:
@@ -126,6 +141,9 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
     eps = PLANE_EPS * scale[cp, ci]
     # one spare slot: clipping a convex polygon by one plane adds at most one vertex
     verts = scene.poly_vertices_spare[ci] - points[cp, None, :]                 # (C, K+1, 3)
+    if limit is not None:
+        flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale[cp, ci]
+                  + scene.poly_noise[ci] + COORD_EPS * np.abs(points[cp]).max(axis=1), limit[cp], verts)
     counts = scene.poly_counts[ci]
     height = np.matmul(verts, normals[cp][:, :, None])[..., 0]                 # (C, K+1) above the horizon
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
@@ -141,10 +159,21 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
     if straddle.any():
         s = np.flatnonzero(straddle)
         k = verts.shape[1] - 1
+        through = None
+        if inf is not None:  # an edge through P (one-sided limit) crosses the horizon at P
+            a = verts[s, :k]
+            nxt = np.arange(k)[None, :] + 1
+            b = np.take_along_axis(a, np.where(nxt < counts[s, None], nxt, 0)[..., None], axis=1)  # as split_convex
+            line_tol = edge_noise(a, b, COORD_EPS * np.abs(points[cp[s]]).max(axis=1))
+            through = ((np.linalg.norm(np.cross(a, b), axis=2)
+                        <= PLANE_EPS * np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2)
+                        + line_tol * np.linalg.norm(b - a, axis=2))
+                       & ((a * b).sum(axis=2) < 0))
         (iv, ic, iinf), _ = split_convex(
             verts[s, :k], counts[s], height[s, :k], eps[s],
             inf=None if inf is None else inf[s, :k],
             s_inf=None if inf is None else np.zeros_like(height[s, :k]),  # N . u = 0: u is tangent
+            origin_edges=through,
         )
         if iv.shape[1] > verts.shape[1]:  # rounding made a nearly degenerate polygon cross twice more
             verts = np.concatenate([verts, np.repeat(verts[:, -1:], iv.shape[1] - verts.shape[1], axis=1)], axis=1)
