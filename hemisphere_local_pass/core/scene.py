@@ -329,8 +329,12 @@ class Scene:
             degenerate = ~(area > tol.AREA_EPS * size * size)
             safe_area = np.where(degenerate, 1.0, area)
             nrm = area_vec / safe_area[:, None]
-            centre = pv.mean(axis=1)
-            dev = np.abs(np.einsum("gkc,gc->gk", pv - centre[:, None, :], nrm)).max(axis=1)
+            # distances from the plane through vertex 0 (differences of nearby coordinates are exact, so
+            # this is exact to rounding of the local size even far from the origin): a quad off its plane by
+            # input rounding (float32 input, a far translation) would be clipped by a depth plane that does
+            # not contain its vertices, by 1e-10 / (distance to the receiver) of its form factor
+            hts = np.einsum("gkc,gc->gk", pv - pv[:, :1], nrm)
+            dev = 0.5 * (hts.max(axis=1) - hts.min(axis=1))
             planar = dev <= tol.PLANARITY_EPS * size
             turn = np.einsum("gkc,gc->gk", np.cross(edges, np.roll(edges, -1, axis=1)), nrm)
             convex = (turn >= -tol.CONVEXITY_EPS * elen * np.roll(elen, -1, axis=1)).all(axis=1)
@@ -338,7 +342,21 @@ class Scene:
             fast = ~degenerate & planar & convex & distinct
             for i in group[degenerate]:
                 dropped[int(i)] = "zero area"
-            slow.extend(int(i) for i in group[~degenerate & ~fast])
+            # convex non-planar quads (typically rounded input) split as ear clipping would split them,
+            # (3, 0, 1) and (1, 2, 3), without the per-polygon loop
+            split4 = ~degenerate & ~planar & convex & distinct if k == 4 else np.zeros(len(group), dtype=bool)
+            if split4.any():
+                for tri in ([3, 0, 1], [1, 2, 3]):
+                    t = pv[split4][:, tri]
+                    t_area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+                    ok = t_area > tol.AREA_EPS * size[split4] ** 2
+                    out_verts.append(t[ok])
+                    out_src.append(group[split4][ok])
+                    if linear:
+                        out_rad.append(corner_rgb[corner_idx[split4][:, tri]][ok])
+                    else:
+                        out_rad.append(poly_rgb[group[split4][ok]])
+            slow.extend(int(i) for i in group[~degenerate & ~fast & ~split4])
             if not fast.any():
                 continue
             g_idx = group[fast]

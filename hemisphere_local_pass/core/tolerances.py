@@ -15,8 +15,9 @@ PLANE_EPS = 1e-12
 AREA_EPS = 1e-12
 
 #: A polygon whose vertices deviate from their best-fit (Newell) plane by more than
-#: ``PLANARITY_EPS`` times its size is non-planar and is triangulated.
-PLANARITY_EPS = 1e-9
+#: ``PLANARITY_EPS`` times its size is non-planar and is triangulated (even when that is input
+#: rounding: treated as planar, its vertices would not lie in its depth plane).
+PLANARITY_EPS = 1e-12
 
 #: Consecutive vertices closer than ``DUPLICATE_EPS`` times the polygon size are merged.
 DUPLICATE_EPS = 1e-12
