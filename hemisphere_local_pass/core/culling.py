@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .scene import Scene, plane_uncertainty
-from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANE_EPS
+from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
 
 __all__ = ["Occluders", "build_occluders"]
 
@@ -122,6 +122,12 @@ def _merge_group(scene: Scene, group: np.ndarray):
         return None  # several loops (holes or disjoint parts)
     pts = np.array([coords[key] for key in loop])
     normal = scene.poly_normals[group[0]]
+    # only polygons coplanar to rounding merge: the triangles of a face that was triangulated because it
+    # is not planar (Scene, PLANARITY_EPS) must keep their own planes, or the merged cone is off by that
+    every = np.array(list(coords.values()))
+    hts = (every - every[0]) @ normal
+    if 0.5 * (hts.max() - hts.min()) > PLANARITY_EPS * float(np.ptp(every, axis=0).max()):
+        return None
     # drop collinear boundary vertices (the subdivision's T-free grid points along the border)
     keep = []
     n_pts = len(pts)

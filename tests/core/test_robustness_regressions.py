@@ -240,6 +240,38 @@ BOX_AND_NEAR_PLANAR_QUAD = dict(
     N=[[-0.5532732542051427, 0.5799044899740048, 0.5979962279891413]],
     U=[[0.0, 0.0, 0.0]],
 )
+FLOAT32_BOXES_NON_PLANAR_FACE = dict(
+    verts=[[0.43925872445106506, 0.6021503210067749, 0.4685499966144562],
+           [0.43946707248687744, 0.609906017780304, 0.5198215842247009],
+           [0.4326029419898987, 0.2543211877346039, 0.5736377239227295],
+           [0.4323946237564087, 0.24656549096107483, 0.5223661065101624],
+           [0.08723179250955582, 0.26104655861854553, 0.5740236639976501],
+           [0.09409590065479279, 0.6166313886642456, 0.5202075242996216],
+           [0.0938875824213028, 0.6088756918907166, 0.46893593668937683],
+           [0.08702346682548523, 0.2532908618450165, 0.5227521061897278],
+           [0.11038245260715485, 0.5154913663864136, 0.5957016348838806],
+           [0.40962913632392883, 0.4260498881340027, 0.4952338635921478],
+           [0.48894527554512024, 0.6134310960769653, 0.5646634697914124],
+           [0.18969859182834625, 0.7028725743293762, 0.6651312708854675],
+           [0.14754338562488556, 0.7989231944084167, 0.45406150817871094]],
+    polygons=[[0, 1, 2],
+              [2, 3, 0],
+              [4, 5, 6],
+              [6, 7, 4],
+              [2, 1, 5],
+              [5, 4, 2],
+              [6, 0, 3],
+              [3, 7, 6],
+              [5, 1, 0],
+              [0, 6, 5],
+              [3, 2, 4],
+              [4, 7, 3],
+              [8, 9, 10],
+              [8, 11, 12]],
+    P=[[0.39334917068481445, 0.5192102789878845, 0.4894980490207672]],
+    N=[[0.23112684146379972, 0.326053018514866, 0.9166623218352068]],
+    U=[[0.0, 0.0, 0.0]],
+)
 
 def test_tiny_triangle_in_the_plane_of_a_unit_quad(core):
     """A 1e-6 triangle lying in the plane of a unit quad (to rounding) and a huge quad behind both: the
@@ -335,3 +367,16 @@ def test_quad_non_planar_by_rounding_is_triangulated(core):
     assert scene.n_polygons == 14  # 12 triangles and the quad split in two
     F = _ff(core, case)[0]
     assert abs(F.sum() - 1.0) <= SUM_TOL, F.sum() - 1.0
+
+
+def test_triangles_of_a_non_planar_face_are_not_merged_into_one_occluder(core):
+    """A float32-rounded box around the receiver and two triangles of an interpenetrating box: the box
+    face they cross was triangulated (non-planar by rounding), and its two triangles were merged back
+    into one planar occluder whenever the plane quantisation put them in one bucket (here: when the
+    second triangle is in the scene), so sum F was 1 - 3.5e-10. Merging needs coplanarity to rounding."""
+    case = FLOAT32_BOXES_NON_PLANAR_FACE
+    F = _ff(core, case)[0]
+    assert abs(F.sum() - 1.0) <= SUM_TOL, F.sum() - 1.0
+    without = _ff(core, case, polygons=list(range(13)))[0]
+    assert abs(without.sum() - 1.0) <= SUM_TOL
+    assert abs(F[12] - without[12]) <= 1e-13  # the hidden 14th polygon changes nothing
