@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .csr import expand
-from .tolerances import PLANE_EPS
+from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["ClearPairs", "TileEdges", "clear_pairs", "clear_form_factors", "clear_irradiance", "tile_edges"]
 
@@ -48,7 +48,9 @@ class TileEdges:
             edge from a to b, -1 if from b to a.
         weight: (E, 3) ``Σ_i σ_ei L_i`` over the members of the edge's tile (constant radiance), or None.
         eligible: (T,) tiles whose members have no duplicates and no coplanar overlaps.
-        plane_normal: (T, 3) unit normal of each tile's plane; plane_point: (T, 3) a vertex on it.
+        plane_normal: (T, 3) unit normal of each tile's plane; plane_point: (T, 3) a vertex on it;
+            plane_tilt, plane_noise: (T,) how well that plane is known (the members' largest
+            :func:`.scene.plane_uncertainty`).
         a_xyz, b_xyz: (3, E) the edges' end points as component rows (for contiguous gathers).
     """
 
@@ -65,6 +67,8 @@ class TileEdges:
     eligible: np.ndarray
     plane_normal: np.ndarray
     plane_point: np.ndarray
+    plane_tilt: np.ndarray
+    plane_noise: np.ndarray
     a_xyz: np.ndarray | None = None
     b_xyz: np.ndarray | None = None
 
@@ -123,9 +127,15 @@ def tile_edges(scene, occ) -> TileEdges:
         weight = np.zeros((int(edge_ptr[-1]), 3))
         np.add.at(weight, glob, inc_sign[:, None] * scene.poly_radiance[inc_poly])
     first = occ.tile_members[occ.tile_ptr[:-1]] if n_t else np.zeros(0, dtype=np.int64)
+    tilt = np.zeros(n_t)
+    noise = np.zeros(n_t)
+    if n_t:
+        tile_of_member = np.repeat(np.arange(n_t), np.diff(occ.tile_ptr))
+        np.maximum.at(tilt, tile_of_member, scene.poly_tilt[occ.tile_members])
+        np.maximum.at(noise, tile_of_member, scene.poly_noise[occ.tile_members])
     return TileEdges(cat(verts_all, np.float64).reshape(-1, 3), edge_ptr, cat(ea_all, np.int64), cat(eb_all, np.int64),
                      inc_ptr, inc_edge, inc_poly, inc_slot, inc_sign, weight, eligible,
-                     scene.poly_normals[first], scene.poly_vertices[first, 0])
+                     scene.poly_normals[first], scene.poly_vertices[first, 0], tilt, noise)
 
 
 @dataclass
@@ -164,7 +174,10 @@ def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> C
     # (PLANE_EPS × a member's scale, which is at least the distance to the tile's nearest point):
     # the general path would not clip any member (walls rising from the receiver's floor qualify)
     near = np.maximum(scale - 2.0 * occ.tile_radii[tt], 0.0)
-    sure = (height.min(axis=1) >= -0.5 * PLANE_EPS * near) & (np.abs(d) > SIDE_MARGIN * scale)
+    # P off the plane by far more than the plane's own uncertainty and the coordinate noise
+    plane_tol = ((PLANE_EPS + te.plane_tilt[tt]) * scale + te.plane_noise[tt]
+                 + COORD_EPS * np.abs(points[tp]).max(axis=1))
+    sure = (height.min(axis=1) >= -0.5 * PLANE_EPS * near) & (np.abs(d) > SIDE_MARGIN * scale + 4.0 * plane_tol)
     tp, tt, d = tp[sure], tt[sure], d[sure]
     mask = np.zeros((m, n_t), dtype=bool)
     mask[tp, tt] = True

@@ -102,6 +102,7 @@ def split_convex(
     *,
     inf: np.ndarray | None = None,
     s_inf: np.ndarray | None = None,
+    origin_edges: np.ndarray | None = None,
 ):
     """Split convex polygons by a plane given through the signed distances of their vertices.
 
@@ -112,6 +113,9 @@ def split_convex(
         verts: (F, K, 3) padded polygons; counts: (F,) vertex counts (0 = empty polygon).
         s_re: (F, K) signed distance of every vertex slot; eps: (F,) on-plane tolerance.
         inf, s_inf: (F, K, 3) and (F, K) first-order parts (see module docstring), or None.
+        origin_edges: (F, K) bool or None: edges ``j -> j+1`` whose line passes through the origin, for a
+            plane through the origin: their crossing is the origin itself (exactly; interpolating a
+            grazing edge would leave it far off by the rounding of the distances).
     Returns:
         ``(inside, outside)``, each a tuple ``(verts (F, W, 3), counts (F,), inf or None)`` with
         ``W >= K+1`` (K+1 for convex input); a side's count is 0 where it is empty.
@@ -169,6 +173,9 @@ def split_convex(
         near_a = np.abs(a0) <= np.abs(b0)
         cand_v[r, 2 * j + 1] = np.where(near_a[:, None], xa + t0[:, None] * (xb - xa),
                                         xb + (1.0 - t0)[:, None] * (xa - xb))
+        if origin_edges is not None:
+            at = origin_edges[r, j]
+            cand_v[r[at], 2 * j[at] + 1] = 0.0
 
     keep_cross = np.zeros((f, 2 * k), dtype=bool)
     keep_cross[:, 1::2] = crossing

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Scene
-from .tolerances import CONVEXITY_EPS, PLANE_EPS
+from .scene import Scene, plane_uncertainty
+from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
 
 __all__ = ["Occluders", "build_occluders"]
 
@@ -53,6 +53,7 @@ class Occluders:
         coplanar_ptr (n+1,), coplanar_occ: CSR lists of the occluders in whose plane polygon i lies
             without being part of them (overlapping duplicates, reversed copies).
         first_source: (n_o,) lowest input polygon index among each occluder's members (tie-break).
+        tilt, noise: (n_o,) uncertainty of each occluder's plane (see :func:`.scene.plane_uncertainty`).
     """
 
     vertices: np.ndarray
@@ -77,6 +78,8 @@ class Occluders:
     coplanar_ptr: np.ndarray
     coplanar_occ: np.ndarray
     first_source: np.ndarray
+    tilt: np.ndarray | None = None
+    noise: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -122,6 +125,12 @@ def _merge_group(scene: Scene, group: np.ndarray):
         return None  # several loops (holes or disjoint parts)
     pts = np.array([coords[key] for key in loop])
     normal = scene.poly_normals[group[0]]
+    # only polygons coplanar to rounding merge: the triangles of a face that was triangulated because it
+    # is not planar (Scene, PLANARITY_EPS) must keep their own planes, or the merged cone is off by that
+    every = np.array(list(coords.values()))
+    hts = (every - every[0]) @ normal
+    if 0.5 * (hts.max() - hts.min()) > PLANARITY_EPS * float(np.ptp(every, axis=0).max()):
+        return None
     # drop collinear boundary vertices (the subdivision's T-free grid points along the border)
     keep = []
     n_pts = len(pts)
@@ -191,25 +200,35 @@ def build_occluders(scene: Scene) -> Occluders:
     radii = np.where(valid, np.linalg.norm(verts - centers[:, None], axis=2), 0.0).max(axis=1) if len(loops) \
         else np.zeros(0)
 
+    occ_tilt, occ_noise = plane_uncertainty(verts)
     # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
     if n:
-        beyond_pos, beyond_neg = _beyond(scene.poly_vertices, scene.poly_counts, verts, normals, _tilt(verts, counts))
+        beyond_pos, beyond_neg = _beyond(scene.poly_vertices, scene.poly_counts, verts, normals, occ_tilt)
     else:
         beyond_pos = beyond_neg = np.zeros((0, len(loops)), dtype=bool)
-    occ_pos, occ_neg = _beyond(verts, counts, verts, normals, _tilt(verts, counts))
+    occ_pos, occ_neg = _beyond(verts, counts, verts, normals, occ_tilt)
     # and the converse: does occluder o reach to either side of polygon i's plane (it can only hide a
     # part of i from a receiver on a side it reaches to)
     if n:
         front_pos, front_neg = (t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices, scene.poly_normals,
-                                                                _tilt(scene.poly_vertices, scene.poly_counts)))
+                                                                scene.poly_tilt))
     else:
         front_pos = front_neg = np.zeros((0, len(loops)), dtype=bool)
+    # Two surfaces are coplanar when each lies in the other's plane within that plane's uncertainty.
+    # A surface within the (poorly known) plane of the other but not vice versa — a huge polygon 1e3
+    # from the plane of a 1e-6 one far from the origin — may lie on either side of it: the flags are
+    # filters, so both are set and the exact per-vertex tests decide.
+    on_b, on_f = ~(beyond_pos | beyond_neg), ~(front_pos | front_neg)
+    coplanar = on_b & on_f
+    beyond_pos, beyond_neg = beyond_pos | (on_b & ~on_f), beyond_neg | (on_b & ~on_f)
+    front_pos, front_neg = front_pos | (on_f & ~on_b), front_neg | (on_f & ~on_b)
+    on_o = ~(occ_pos | occ_neg)
+    occ_pos, occ_neg = occ_pos | (on_o & ~on_o.T), occ_neg | (on_o & ~on_o.T)
     if n:
         members = members[scene.dup_rep]
     tiles = _tiles(scene, members, len(loops))
     # coplanar overlapping surfaces (duplicates, reversed copies): polygon i lies in the plane of
     # occluder o but is not part of it; the visibility stage lets one of them win where they overlap
-    coplanar = ~(beyond_pos | beyond_neg)
     if n:
         coplanar[np.arange(n), members] = False
     ci, co = np.nonzero(coplanar)
@@ -219,7 +238,7 @@ def build_occluders(scene: Scene) -> Occluders:
     if n:
         np.minimum.at(first_source, members, scene.poly_source)
     return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
-                     front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source)
+                     front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise)
 
 
 #: target number of member polygons per tile of a merged occluder
@@ -263,25 +282,13 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     return tile_of, corners, centers, radii, np.array(occ_of, dtype=np.int64), np.cumsum(tile_ptr), tile_members
 
 
-def _tilt(verts: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """(k,) angular uncertainty (radians) of the Newell normals of padded polygons ``verts (k, K, 3)``.
-
-    A normal built from vertex differences of size s over an area A is uncertain by about
-    ulp · s² / A: negligible for a fair polygon, large for a sliver, whose plane then really is only
-    known that well (its vertices may sit 1e-5 off a "plane" fitted to rounding noise).
-    """
-    rel = verts - verts[:, :1]
-    area = 0.5 * np.linalg.norm(np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1), axis=1)
-    size = np.linalg.norm(rel, axis=2).max(axis=1)
-    return 8 * np.finfo(np.float64).eps * size * size / np.maximum(area, np.finfo(np.float64).tiny)
-
-
 def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     """(B, n_o) bool pair: body b has a vertex strictly on the positive / negative side of occluder o.
 
     Signed distances are taken relative to a vertex of the occluder: differences of nearby world
     coordinates are exact, so scenes far from the origin keep their precision. "Strictly" allows for
-    the occluder plane's own uncertainty ``occ_tilt (n_o,)`` (see :func:`_tilt`).
+    the occluder plane's own uncertainty ``occ_tilt (n_o,)`` (see :func:`.scene.plane_uncertainty`) and
+    for the coordinate noise of both (see :data:`.tolerances.COORD_EPS`).
     """
     b_n, k = body_verts.shape[:2]
     n_o = len(occ_verts)
@@ -289,13 +296,18 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     neg = np.zeros((b_n, n_o), dtype=bool)
     valid = np.arange(k)[None, :] < body_counts[:, None]
     step = max(1, int(2e6 // max(1, n_o * k)))
+    noise_b = COORD_EPS * np.abs(body_verts).max(axis=(1, 2))                           # (B,)
+    noise_o = COORD_EPS * np.abs(occ_verts).max(axis=(1, 2))                            # (n_o,)
     for s in range(0, b_n, step):
         rel = body_verts[s:s + step, :, None, :] - occ_verts[None, None, :, 0, :]     # (b, K, n_o, 3)
         d = (rel * occ_normals[None, None]).sum(axis=3)                               # (b, K, n_o)
-        eps = (4 * PLANE_EPS + occ_tilt[None, :]) * np.abs(rel).max(axis=(1, 3))      # (b, n_o)
+        # per vertex: a tilt of the plane moves a point by tilt × its distance from the plane's
+        # reference vertex (the body's farthest vertex must not set the tolerance of its nearest)
+        eps = ((4 * PLANE_EPS + occ_tilt[None, None, :]) * np.abs(rel).max(axis=3)   # (b, K, n_o)
+               + noise_b[s:s + step, None, None] + noise_o[None, None, :])
         d = np.where(valid[s:s + step, :, None], d, 0.0)
-        pos[s:s + step] = (d > eps[:, None, :]).any(axis=1)
-        neg[s:s + step] = (d < -eps[:, None, :]).any(axis=1)
+        pos[s:s + step] = (d > eps).any(axis=1)
+        neg[s:s + step] = (d < -eps).any(axis=1)
     return pos, neg
 
 

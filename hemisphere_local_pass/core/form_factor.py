@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .tolerances import PLANE_EPS
+from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["CANCELLATION", "contour_integral", "directions"]
+__all__ = ["CANCELLATION", "contour_integral", "directions", "edge_noise"]
 
 _INV_2PI = 1.0 / (2.0 * np.pi)
 
@@ -37,14 +37,27 @@ def directions(verts: np.ndarray, inf: np.ndarray | None) -> np.ndarray:
     return np.where(at_p[..., None], inf * scale[..., None], verts)
 
 
-def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | None = None) -> np.ndarray:
+def edge_noise(a: np.ndarray, b: np.ndarray, receiver_noise) -> np.ndarray:
+    """Coordinate noise ``(F, K)`` of the lines of edges ``a -> b (F, K, 3)`` (receiver-local) near P.
+
+    An edge passes through the receiver when its line is nearer to P than the rounding of the world
+    coordinates involved (``receiver_noise (F,)``: ``COORD_EPS · max |P|``, plus ``COORD_EPS`` times the
+    edge's extent from P). Every test for an edge through P (occluder cones, horizon clip, eq. 4) uses it.
+    """
+    extent = np.maximum(np.abs(a).max(axis=-1), np.abs(b).max(axis=-1))
+    return np.asarray(receiver_noise)[..., None] + COORD_EPS * extent
+
+
+def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | None = None,
+                     noise=None) -> np.ndarray:
     """Signed form factor ``(F,)`` of padded polygons ``verts (F, K, 3)`` (receiver-local).
 
     ``normal`` is the receiver's unit normal, ``(F, 3)`` or ``(3,)``. The sign is positive when the
     vertices run counter-clockwise about the direction from the receiver to the polygon (i.e. the
     receiver is behind the polygon's right-handed normal); callers multiply by the orientation.
     Padding slots (repeated last vertex) give zero-length edges, which contribute exactly zero.
-    The polygon must lie in the receiver's closed upper hemisphere (clip it first).
+    The polygon must lie in the receiver's closed upper hemisphere (clip it first). ``noise (F,)``: the
+    receivers' coordinate noise (see :func:`edge_noise`), for edges through P in one-sided limits.
     """
     a = directions(verts, inf)
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]                              # (F, K) each
@@ -66,7 +79,11 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
         # an edge through P in a one-sided limit: its end points are antipodal seen from P (a×b = 0,
         # γ = π) and its great circle is the limit of the planes through P + εu: use the first-order
         # part of the cross product, (a + ε a')×(b + ε b') = a×b + ε (a×b' + a'×b)
-        through = (s <= PLANE_EPS * np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz))) & (d < 0)
+        tol = PLANE_EPS * np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz))
+        if noise is not None:
+            b3 = np.stack([bx, by, bz], axis=-1)
+            tol = tol + edge_noise(a, b3, noise) * np.sqrt(ex * ex + ey * ey + ez * ez)
+        through = (s <= tol) & (d < 0)
         through &= (np.abs(inf) > 0).any(axis=2)                              # only rows with a limit
         if through.any():
             ia = inf[through]

@@ -18,6 +18,7 @@ from .culling import Occluders, build_occluders
 from .form_factor import CANCELLATION, contour_integral
 from .projection import hemisphere_candidates
 from .scene import Scene
+from .tolerances import COORD_EPS
 from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes
 
 __all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_with_ff"]
@@ -112,7 +113,7 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
     frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
                       cand.point[vis], cand.poly[vis], cand.side[vis], vis)
     frags = subtract_shadow_volumes(frags, ptr, ids, sv)
-    ff = frags.side * _contour_by_width(frags, normals)
+    ff = frags.side * _contour_by_width(frags, normals, points)
     if not reps.all():
         # credit each fragment to the copy that faces the receiver (then the lowest index)
         rep = frags.poly
@@ -135,16 +136,18 @@ def _clear_form_factors(scene: Scene, occ: Occluders, clear, points, normals):
     return cp, poly, np.maximum(ff, 0.0)
 
 
-def _contour_by_width(frags: Fragments, normals) -> np.ndarray:
+def _contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
     """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots."""
     width = frags.verts.shape[1]
     small = frags.counts <= 4
+    noise = None if frags.inf is None else COORD_EPS * np.abs(points).max(axis=1)[frags.point]
     if width <= 4 or small.all() or not small.any():
-        return contour_integral(frags.verts, normals[frags.point], frags.inf)
+        return contour_integral(frags.verts, normals[frags.point], frags.inf, noise)
     out = np.empty(len(frags.counts))
     for sel, w in ((small, 4), (~small, width)):
         out[sel] = contour_integral(frags.verts[sel, :w], normals[frags.point[sel]],
-                                    None if frags.inf is None else frags.inf[sel, :w])
+                                    None if frags.inf is None else frags.inf[sel, :w],
+                                    None if noise is None else noise[sel])
     return out
 
 

@@ -21,47 +21,69 @@ import numpy as np
 
 from .clipping import split_convex
 from .csr import expand
+from .form_factor import edge_noise
 from .scene import Scene
-from .tolerances import PLANE_EPS
+from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["Candidates", "Projection", "hemisphere_candidates", "project_point", "receiver_side"]
+__all__ = ["Candidates", "Projection", "flat_rows", "hemisphere_candidates", "project_point", "receiver_side"]
 
 
-def _side(d, tol, d_inf):
+def _side(d, tol, d_inf, tilt=0.0):
     """+1 / -1 / 0 (int8) from plane distances ``d`` with tolerance ``tol``; where ``d`` is within it,
-    from the first-order distances ``d_inf()`` (a callable: computed only if needed) or 0."""
+    from the first-order distances ``d_inf()`` (a callable: computed only if needed; ``-n . u``, known to
+    the plane's angular uncertainty ``tilt``) or 0."""
     side = np.where(d > tol, 1, np.where(d < -tol, -1, 0)).astype(np.int8)
     if d_inf is not None:
         on = side == 0
         if on.any():
             di = d_inf()[on]
-            side[on] = np.where(di > PLANE_EPS, 1, np.where(di < -PLANE_EPS, -1, 0))
+            tol_inf = PLANE_EPS + np.broadcast_to(tilt, side.shape)[on]
+            side[on] = np.where(di > tol_inf, 1, np.where(di < -tol_inf, -1, 0))
     return side
 
 
-def receiver_side(normals, first_vertex_rel, scale, limit):
+def receiver_side(normals, first_vertex_rel, scale, limit, tilt=0.0, noise=0.0):
     """Side of each plane the receiver is on, ``(m, n)`` int8: +1 behind (plane normal points away
     from P), -1 in front, 0 in the plane (edge-on).
 
     Args:
         normals: (n, 3) plane normals; first_vertex_rel: (m, n, 3) a plane vertex minus P;
         scale: (m, n) length scale for the tolerance; limit: (m, 3) limit directions or None.
+        tilt, noise: the planes' angular uncertainty (n,) and the absolute coordinate noise of planes
+            and receivers (broadcast to (m, n)), see :func:`.scene.plane_uncertainty`.
     """
     d = (first_vertex_rel * normals[None]).sum(axis=2)                 # n . (v0 - P)
     # at P + εu the plane distance is n.(v0 - P) - ε n.u
-    return _side(d, PLANE_EPS * scale, None if limit is None else (lambda: -(limit @ normals.T)))
+    return _side(d, (PLANE_EPS + tilt) * scale + noise, None if limit is None else (lambda: -(limit @ normals.T)),
+                 tilt)
 
 
-def plane_side(normals, rel_center, center_offset, scale, limit):
+def plane_side(normals, rel_center, center_offset, scale, limit, tilt=0.0, noise=0.0):
     """Side of each plane the receiver is on for sparse (receiver, plane) pairs, ``(C,)`` int8.
 
     Args:
         normals: (C, 3) plane normals; rel_center: (C, 3) polygon centre minus P; center_offset: (C,)
         ``n . (centre - v0)`` (the centre's rounding-level distance from its own plane); scale: (C,);
-        limit: (C, 3) limit directions or None. +1: P behind the plane, -1 in front, 0 in it.
+        limit: (C, 3) limit directions or None; tilt, noise: (C,) as for :func:`receiver_side`.
+        +1: P behind the plane, -1 in front, 0 in it.
     """
     d = (normals * rel_center).sum(axis=1) - center_offset                     # n . (v0 - P)
-    return _side(d, PLANE_EPS * scale, None if limit is None else (lambda: -(limit * normals).sum(axis=1)))
+    return _side(d, (PLANE_EPS + tilt) * scale + noise,
+                 None if limit is None else (lambda: -(limit * normals).sum(axis=1)), tilt)
+
+
+def flat_rows(normals, first_vertex_rel, tol, limit, verts):
+    """In a one-sided limit, the rows whose plane contains P within ``tol (C,)`` (their side comes from
+    the limit direction), ``(C,)`` bool; their vertices ``verts (C, K, 3)`` (P-local) are moved exactly
+    into the plane through P (in place), by at most ``tol``: seen from P + εu only directions matter,
+    and the directions of vertices a few ulp from P would otherwise be noise."""
+    d = (normals * first_vertex_rel).sum(axis=1)
+    flat = (np.abs(d) <= tol) & limit.any(axis=1)
+    if flat.any():
+        n = normals[flat]
+        v = verts[flat]
+        verts[flat] = v - np.matmul(v, n[:, :, None]) * n[:, None, :]
+    return flat
 
 
 def snap_to_receiver(verts: np.ndarray, eps: np.ndarray) -> None:
@@ -136,12 +158,16 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
     mask = height_c + scene.poly_radii[ci] > PLANE_EPS * scale
     cp, ci, rel_ci, scale = cp[mask], ci[mask], rel_ci[mask], scale[mask]
     side = plane_side(scene.poly_normals[ci], rel_ci, scene.poly_center_offsets[ci], scale,
-                      None if limit is None else limit[cp])
+                      None if limit is None else limit[cp], scene.poly_tilt[ci],
+                      scene.poly_noise[ci] + COORD_EPS * np.abs(points[cp]).max(axis=1))
     keep = side != 0
-    cp, ci, side = cp[keep], ci[keep], side[keep]
-    eps = PLANE_EPS * scale[keep]
+    cp, ci, side, scale = cp[keep], ci[keep], side[keep], scale[keep]
+    eps = PLANE_EPS * scale
     # one spare slot: clipping a convex polygon by one plane adds at most one vertex
     verts = scene.poly_vertices_spare[ci] - points[cp, None, :]                 # (C, K+1, 3)
+    if limit is not None:
+        flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale
+                  + scene.poly_noise[ci] + COORD_EPS * np.abs(points[cp]).max(axis=1), limit[cp], verts)
     counts = scene.poly_counts[ci]
     height = np.matmul(verts, normals[cp][:, :, None])[..., 0]                 # (C, K+1) above the horizon
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
@@ -157,10 +183,21 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
     if straddle.any():
         s = np.flatnonzero(straddle)
         k = verts.shape[1] - 1
+        through = None
+        if inf is not None:  # an edge through P (one-sided limit) crosses the horizon at P
+            a = verts[s, :k]
+            nxt = np.arange(k)[None, :] + 1
+            b = np.take_along_axis(a, np.where(nxt < counts[s, None], nxt, 0)[..., None], axis=1)  # as split_convex
+            line_tol = edge_noise(a, b, COORD_EPS * np.abs(points[cp[s]]).max(axis=1))
+            through = ((np.linalg.norm(np.cross(a, b), axis=2)
+                        <= PLANE_EPS * np.linalg.norm(a, axis=2) * np.linalg.norm(b, axis=2)
+                        + line_tol * np.linalg.norm(b - a, axis=2))
+                       & ((a * b).sum(axis=2) < 0))
         (iv, ic, iinf), _ = split_convex(
             verts[s, :k], counts[s], height[s, :k], eps[s],
             inf=None if inf is None else inf[s, :k],
             s_inf=None if inf is None else np.zeros_like(height[s, :k]),  # N . u = 0: u is tangent
+            origin_edges=through,
         )
         if iv.shape[1] > verts.shape[1]:  # rounding made a nearly degenerate polygon cross twice more
             verts = np.concatenate([verts, np.repeat(verts[:, -1:], iv.shape[1] - verts.shape[1], axis=1)], axis=1)

@@ -47,6 +47,23 @@ def _newell(verts: np.ndarray) -> np.ndarray:
     return 0.5 * np.cross(rel, nxt).sum(axis=1)
 
 
+def plane_uncertainty(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How well the Newell planes of padded polygons ``verts (g, K, 3)`` are known: ``(tilt, noise)``.
+
+    ``tilt (g,)`` is the angular uncertainty (radians) of the normal: built from vertex differences of
+    size s over an area A it is uncertain by about ulp · s² / A (negligible for a fair polygon, large for
+    a sliver, whose plane really is only known that well), plus noise · s / A for the vertices' own
+    coordinate noise. ``noise (g,)`` is that coordinate noise, ``COORD_EPS · max |x|`` (absolute).
+    A plane distance ``n · (v0 - x)`` is thus uncertain by ``tilt · |v0 - x| + noise``.
+    """
+    rel = verts - verts[:, :1]
+    area = 0.5 * np.linalg.norm(np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1), axis=1)
+    size = np.linalg.norm(rel, axis=2).max(axis=1)
+    noise = tol.COORD_EPS * np.abs(verts).max(axis=(1, 2))
+    tilt = (8 * np.finfo(np.float64).eps * size + 2 * noise) * size / np.maximum(area, np.finfo(np.float64).tiny)
+    return tilt, noise
+
+
 def _ear_clip(pts2d: np.ndarray) -> list[tuple[int, int, int]]:
     """Triangulate a simple polygon given by ``pts2d (k, 2)`` counter-clockwise; returns index triples.
 
@@ -101,6 +118,7 @@ class Scene:
             the vertex order (counter-clockwise seen from the front).
         poly_offsets: (n,) float64 plane offsets, ``poly_normals[i] . x == poly_offsets[i]``.
         poly_centers, poly_radii: (n, 3), (n,) bounding spheres.
+        poly_tilt, poly_noise: (n,), (n,) uncertainty of each polygon's plane (see :func:`plane_uncertainty`).
         poly_source: (n,) int64 input polygon each convex polygon came from.
         poly_radiance: (n, 3) float64 radiance (linear RGB, W sr^-1 m^-2); in linear mode the
             mean of the corner values.
@@ -149,6 +167,7 @@ class Scene:
                                                  self.poly_centers - self.poly_vertices[:, 0])
             d = np.linalg.norm(self.poly_vertices - self.poly_centers[:, None, :], axis=2)
             self.poly_radii = np.where(valid, d, 0.0).max(axis=1)
+            self.poly_tilt, self.poly_noise = plane_uncertainty(self.poly_vertices)
             self._find_duplicates(valid)
         else:
             self.dup_rep = self.dup_same = self.dup_opp = np.zeros(0, dtype=np.int64)
@@ -157,6 +176,8 @@ class Scene:
             self.poly_offsets = np.zeros(0)
             self.poly_center_offsets = np.zeros(0)
             self.poly_radii = np.zeros(0)
+            self.poly_tilt = np.zeros(0)
+            self.poly_noise = np.zeros(0)
 
     def _find_duplicates(self, valid: np.ndarray) -> None:
         """Identical convex polygons (same vertices, either orientation): coplanar overlapping copies.
@@ -308,8 +329,12 @@ class Scene:
             degenerate = ~(area > tol.AREA_EPS * size * size)
             safe_area = np.where(degenerate, 1.0, area)
             nrm = area_vec / safe_area[:, None]
-            centre = pv.mean(axis=1)
-            dev = np.abs(np.einsum("gkc,gc->gk", pv - centre[:, None, :], nrm)).max(axis=1)
+            # distances from the plane through vertex 0 (differences of nearby coordinates are exact, so
+            # this is exact to rounding of the local size even far from the origin): a quad off its plane by
+            # input rounding (float32 input, a far translation) would be clipped by a depth plane that does
+            # not contain its vertices, by 1e-10 / (distance to the receiver) of its form factor
+            hts = np.einsum("gkc,gc->gk", pv - pv[:, :1], nrm)
+            dev = 0.5 * (hts.max(axis=1) - hts.min(axis=1))
             planar = dev <= tol.PLANARITY_EPS * size
             turn = np.einsum("gkc,gc->gk", np.cross(edges, np.roll(edges, -1, axis=1)), nrm)
             convex = (turn >= -tol.CONVEXITY_EPS * elen * np.roll(elen, -1, axis=1)).all(axis=1)
@@ -317,7 +342,21 @@ class Scene:
             fast = ~degenerate & planar & convex & distinct
             for i in group[degenerate]:
                 dropped[int(i)] = "zero area"
-            slow.extend(int(i) for i in group[~degenerate & ~fast])
+            # convex non-planar quads (typically rounded input) split as ear clipping would split them,
+            # (3, 0, 1) and (1, 2, 3), without the per-polygon loop
+            split4 = ~degenerate & ~planar & convex & distinct if k == 4 else np.zeros(len(group), dtype=bool)
+            if split4.any():
+                for tri in ([3, 0, 1], [1, 2, 3]):
+                    t = pv[split4][:, tri]
+                    t_area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+                    ok = t_area > tol.AREA_EPS * size[split4] ** 2
+                    out_verts.append(t[ok])
+                    out_src.append(group[split4][ok])
+                    if linear:
+                        out_rad.append(corner_rgb[corner_idx[split4][:, tri]][ok])
+                    else:
+                        out_rad.append(poly_rgb[group[split4][ok]])
+            slow.extend(int(i) for i in group[~degenerate & ~fast & ~split4])
             if not fast.any():
                 continue
             g_idx = group[fast]

@@ -15,8 +15,9 @@ PLANE_EPS = 1e-12
 AREA_EPS = 1e-12
 
 #: A polygon whose vertices deviate from their best-fit (Newell) plane by more than
-#: ``PLANARITY_EPS`` times its size is non-planar and is triangulated.
-PLANARITY_EPS = 1e-9
+#: ``PLANARITY_EPS`` times its size is non-planar and is triangulated (even when that is input
+#: rounding: treated as planar, its vertices would not lie in its depth plane).
+PLANARITY_EPS = 1e-12
 
 #: Consecutive vertices closer than ``DUPLICATE_EPS`` times the polygon size are merged.
 DUPLICATE_EPS = 1e-12
@@ -31,3 +32,11 @@ CONVEXITY_EPS = 1e-12
 #: scale over the cosine with the surface: grazing angles down to cos ~ 1e-7 are safe). Occluders
 #: nearer than this are missed.
 RAY_EPS = 1e-9
+
+#: Input coordinates are only known to about ``COORD_EPS`` times their magnitude: a scene moved
+#: (rotated, translated) into place, or exported, carries a few ulp of rounding in every world
+#: coordinate, so exact coincidences (shared planes, points on edges) hold only to
+#: ``COORD_EPS * max |x|``. This absolute *coordinate noise* is added to the relative tolerances
+#: above wherever a decision compares world-space geometry: far from the origin (1e6 with a local
+#: scale of 1) it is ~1e-9 of the local scale, far above ``PLANE_EPS``.
+COORD_EPS = 16 * 2.220446049250313e-16

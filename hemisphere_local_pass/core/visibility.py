@@ -26,8 +26,9 @@ import numpy as np
 from .clipping import classify, split_convex
 from .csr import expand
 from .culling import Occluders
-from .projection import Candidates, receiver_side, snap_to_receiver
-from .tolerances import PLANE_EPS
+from .form_factor import edge_noise
+from .projection import Candidates, flat_rows, receiver_side, snap_to_receiver
+from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["Coverage", "Fragments", "ShadowVolumes", "coverage", "occluder_pairs", "shadow_volumes",
            "subtract_shadow_volumes"]
@@ -122,7 +123,9 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     rel_c = occ.centers[None] - points[:, None]                                 # (m, n_o, 3)
     dist_c = np.linalg.norm(rel_c, axis=2)
     scale = dist_c + occ.radii[None]
-    side = receiver_side(occ.normals, occ.vertices[None, :, 0] - points[:, None], scale, limit)
+    noise = 0.0 if occ.noise is None else occ.noise[None] + COORD_EPS * np.abs(points).max(axis=1)[:, None]
+    side = receiver_side(occ.normals, occ.vertices[None, :, 0] - points[:, None], scale, limit,
+                         0.0 if occ.tilt is None else occ.tilt, noise)
     # an occluder can only hide points above the horizon with its own part above the horizon
     height_c = np.matmul(rel_c, normals[:, :, None])[..., 0]
     active = (side != 0) & (height_c + occ.radii[None] > PLANE_EPS * scale)
@@ -135,6 +138,10 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     up = ((np.matmul(x, normals[qp][:, :, None])[..., 0] > PLANE_EPS * xs[:, None]) & valid).any(axis=1)
     qp, qo, x, counts, valid, xs = qp[up], qo[up], x[up], counts[up], valid[up], xs[up]
     if limit is not None:
+        # P in the occluder's plane within its uncertainty (the side came from the limit): put the
+        # vertices exactly in the plane through P, as the candidates are (see hemisphere_candidates)
+        flat = flat_rows(occ.normals[qo], x[:, 0], (PLANE_EPS + (0.0 if occ.tilt is None else occ.tilt[qo]))
+                         * scale[qp, qo] + (0.0 if occ.noise is None else noise[qp, qo]), limit[qp], x)
         snap_eps = PLANE_EPS * (np.linalg.norm(rel_c[qp, qo], axis=1) + occ.radii[qo])
         snap_to_receiver(x, np.where(limit[qp].any(axis=1), snap_eps, -1.0))  # zero rows: exact at P
     sigma = side[qp, qo].astype(np.float64)                                     # (Q,)
@@ -156,21 +163,44 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     c = np.cross(x, xn)                                                         # (Q, Ko, 3)
     cn = np.linalg.norm(c, axis=2)
     lens = np.linalg.norm(x, axis=2) * np.linalg.norm(xn, axis=2)
+    if limit is not None:
+        # an edge whose line passes within the coordinate noise of P goes through P: its plane through
+        # P is then only known to rounding, and the limit decides (the same test as the contour integral's)
+        line_tol = edge_noise(x, xn, COORD_EPS * np.abs(points[qp]).max(axis=1))
+        lens = lens + line_tol * np.linalg.norm(xn - x, axis=2) / PLANE_EPS
     ok = valid & (cn > PLANE_EPS * lens)
+    through_p = np.zeros_like(ok)
     if limit is not None:
         # an edge through P (one-sided limit only): its plane is the limit of the plane through P + εu
         u = -limit[qp][:, None, :]
         at_p = valid & ~ok
         if at_p.any():
-            c_inf = np.cross(np.broadcast_to(u, x.shape), xn) + np.cross(x, np.broadcast_to(u, x.shape))
+            u_x = np.broadcast_to(u, x.shape)
+            # only the half of the edge above the horizon can hide anything: its plane is the one through
+            # P and that end point, as for the candidates' horizon clip (which cuts the edge at P)
+            h = np.matmul(x, normals[qp][:, :, None])[..., 0]
+            hn = np.where(np.arange(k)[None] + 1 < counts[:, None], np.roll(h, -1, axis=1), h[:, :1])
+            c_inf = np.where(((hn > 0) & (h <= 0))[..., None], np.cross(u_x, xn),
+                             np.where(((h > 0) & (hn <= 0))[..., None], np.cross(x, u_x),
+                                      np.cross(u_x, xn) + np.cross(x, u_x)))
             cin = np.linalg.norm(c_inf, axis=2)
             use = at_p & (cin > PLANE_EPS * np.maximum(np.linalg.norm(xn, axis=2), np.linalg.norm(x, axis=2)))
             c = np.where(use[..., None], c_inf, c)
             cn = np.where(use, cin, cn)
             ok |= use
+            through_p = use
     unit = c / np.where(ok, cn, 1.0)[..., None]
     normal[:, 1:] = np.where(ok[..., None], sigma[:, None, None] * unit, 0.0)
     offset[:, 1:] = np.where(ok, 0.0, -1.0)
+    if limit is not None and flat.any():
+        # P in the occluder's plane (its side from the limit): seen from P + εu everything behind the plane
+        # is hit within O(ε) of P, so only the edges through P bound the cone; the plane through P and any
+        # other edge is the occluder's own plane up to rounding: always inside if P is inside that edge,
+        # always outside if not (left as planes, their rounding-level tilts would cut slivers off the cone)
+        edge = ok & ~through_p & flat[:, None]
+        inner = np.einsum("qjc,qc->qj", normal[:, 1:], normal[:, 0]) > 0
+        normal[:, 1:][edge] = 0.0
+        offset[:, 1:][edge] = np.where(inner[edge], -1.0, 1.0)
     near = dist_c[qp, qo] - occ.radii[qo]
     table = np.full((m, n_o), -1, dtype=np.int64)
     table[qp, qo] = np.arange(q)
