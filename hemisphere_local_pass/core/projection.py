@@ -67,7 +67,7 @@ def plane_side(normals, rel_center, center_offset, scale, limit, tilt=0.0, noise
         limit: (C, 3) limit directions or None; tilt, noise: (C,) as for :func:`receiver_side`.
         +1: P behind the plane, -1 in front, 0 in it.
     """
-    d = (normals * rel_center).sum(axis=1) - center_offset                     # n . (v0 - P)
+    d = np.einsum("ij,ij->i", normals, rel_center) - center_offset             # n . (v0 - P)
     return _side(d, (PLANE_EPS + tilt) * scale + noise,
                  None if limit is None else (lambda: -(limit * normals).sum(axis=1)), tilt)
 
@@ -153,13 +153,14 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
         cp, ci = cp[keep], ci[keep]
     # horizon culling by bounding sphere first (conservative, cheap), then by the vertices
     rel_ci = scene.poly_centers[ci] - points[cp]                               # (C, 3)
-    height_c = (rel_ci * normals[cp]).sum(axis=1)
-    scale = np.sqrt((rel_ci * rel_ci).sum(axis=1)) + scene.poly_radii[ci]
+    height_c = np.einsum("ij,ij->i", rel_ci, normals[cp])
+    scale = np.sqrt(np.einsum("ij,ij->i", rel_ci, rel_ci)) + scene.poly_radii[ci]
     mask = height_c + scene.poly_radii[ci] > PLANE_EPS * scale
     cp, ci, rel_ci, scale = cp[mask], ci[mask], rel_ci[mask], scale[mask]
+    point_noise = COORD_EPS * np.abs(points).max(axis=1)                        # (m,) the receivers' own
     side = plane_side(scene.poly_normals[ci], rel_ci, scene.poly_center_offsets[ci], scale,
                       None if limit is None else limit[cp], scene.poly_tilt[ci],
-                      scene.poly_noise[ci] + COORD_EPS * np.abs(points[cp]).max(axis=1))
+                      scene.poly_noise[ci] + point_noise[cp])
     keep = side != 0
     cp, ci, side, scale = cp[keep], ci[keep], side[keep], scale[keep]
     eps = PLANE_EPS * scale
@@ -167,7 +168,7 @@ def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=Non
     verts = scene.poly_vertices_spare[ci] - points[cp, None, :]                 # (C, K+1, 3)
     if limit is not None:
         flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale
-                  + scene.poly_noise[ci] + COORD_EPS * np.abs(points[cp]).max(axis=1), limit[cp], verts)
+                  + scene.poly_noise[ci] + point_noise[cp], limit[cp], verts)
     counts = scene.poly_counts[ci]
     height = np.matmul(verts, normals[cp][:, :, None])[..., 0]                 # (C, K+1) above the horizon
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]

@@ -242,7 +242,7 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     plane of the volume; exactly, the body's vertices are not all outside one plane. A body whose
     vertices are inside (or on) every plane lies wholly in the volume: it is *covered* (hidden).
     """
-    cos_angle = (ax_b[body] * ax_o[q]).sum(axis=1)
+    cos_angle = np.einsum("ij,ij->i", ax_b[body], ax_o[q])
     cos_sum = np.cos(half_b[body] + np.minimum(half_o[q], np.pi))
     keep = np.flatnonzero((half_b[body] + half_o[q] >= np.pi) | (cos_angle >= cos_sum - 1e-12))
     rel = center_rel[body[keep]]                                                 # (p, 3)
@@ -452,7 +452,7 @@ def _all_plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray
         s_inf = np.matmul(nrm, inf.transpose(0, 2, 1)) - sv.offset_inf[q][:, :, None]
         on = side == 0
         side[on] = (s_inf[on] > PLANE_EPS).astype(np.int8) - (s_inf[on] < -PLANE_EPS)
-    side[np.broadcast_to((np.arange(verts.shape[1])[None, :] >= counts[:, None])[:, None, :], side.shape)] = 0
+    side *= (np.arange(verts.shape[1])[None, :] < counts[:, None])[:, None, :]     # padding slots: 0
     return side, s_re, s_inf, eps
 
 
