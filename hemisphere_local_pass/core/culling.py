@@ -202,28 +202,33 @@ def build_occluders(scene: Scene) -> Occluders:
 
     occ_tilt, occ_noise = plane_uncertainty(verts)
     # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
-    if n:
-        beyond_pos, beyond_neg = _beyond(scene.poly_vertices, scene.poly_counts, verts, normals, occ_tilt)
-    else:
-        beyond_pos = beyond_neg = np.zeros((0, len(loops)), dtype=bool)
-    occ_pos, occ_neg = _beyond(verts, counts, verts, normals, occ_tilt)
+    n_o = len(loops)
+    none = np.zeros((0, n_o), dtype=bool)
+    b_pos, b_neg, bb_pos, bb_neg = (_beyond(scene.poly_vertices, scene.poly_counts, verts, normals, occ_tilt) if n
+                                    else (none,) * 4)
+    o_pos, o_neg, ob_pos, ob_neg = _beyond(verts, counts, verts, normals, occ_tilt)
     # and the converse: does occluder o reach to either side of polygon i's plane (it can only hide a
     # part of i from a receiver on a side it reaches to)
-    if n:
-        front_pos, front_neg = (t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices, scene.poly_normals,
-                                                                scene.poly_tilt))
-    else:
-        front_pos = front_neg = np.zeros((0, len(loops)), dtype=bool)
-    # Two surfaces are coplanar when each lies in the other's plane within that plane's uncertainty.
+    f_pos, f_neg, fb_pos, fb_neg = ((t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices,
+                                                                 scene.poly_normals, scene.poly_tilt)) if n
+                                    else (none,) * 4)
+    # Two surfaces are coplanar when each lies in the other's plane within that plane's uncertainty,
+    # all of the surface within the tolerance of its farthest vertex (``*_body``); coplanar pairs keep
+    # those flags. Other pairs use each vertex's own tolerance: a sliver through P is "beyond" the plane
+    # of a 1e-6 triangle by its vertex at P even though its far end is within that plane's uncertainty.
     # A surface within the (poorly known) plane of the other but not vice versa — a huge polygon 1e3
     # from the plane of a 1e-6 one far from the origin — may lie on either side of it: the flags are
     # filters, so both are set and the exact per-vertex tests decide.
-    on_b, on_f = ~(beyond_pos | beyond_neg), ~(front_pos | front_neg)
+    on_b, on_f = ~(bb_pos | bb_neg), ~(fb_pos | fb_neg)
     coplanar = on_b & on_f
-    beyond_pos, beyond_neg = beyond_pos | (on_b & ~on_f), beyond_neg | (on_b & ~on_f)
-    front_pos, front_neg = front_pos | (on_f & ~on_b), front_neg | (on_f & ~on_b)
-    on_o = ~(occ_pos | occ_neg)
-    occ_pos, occ_neg = occ_pos | (on_o & ~on_o.T), occ_neg | (on_o & ~on_o.T)
+    beyond_pos = np.where(coplanar, bb_pos, b_pos) | (on_b & ~on_f)
+    beyond_neg = np.where(coplanar, bb_neg, b_neg) | (on_b & ~on_f)
+    front_pos = np.where(coplanar, fb_pos, f_pos) | (on_f & ~on_b)
+    front_neg = np.where(coplanar, fb_neg, f_neg) | (on_f & ~on_b)
+    on_o = ~(ob_pos | ob_neg)
+    occ_coplanar = on_o & on_o.T
+    occ_pos = np.where(occ_coplanar, ob_pos, o_pos) | (on_o & ~on_o.T)
+    occ_neg = np.where(occ_coplanar, ob_neg, o_neg) | (on_o & ~on_o.T)
     if n:
         members = members[scene.dup_rep]
     tiles = _tiles(scene, members, len(loops))
@@ -283,7 +288,13 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
 
 
 def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
-    """(B, n_o) bool pair: body b has a vertex strictly on the positive / negative side of occluder o.
+    """(B, n_o) bool pairs: body b has a vertex strictly on the positive / negative side of occluder o.
+
+    Returns ``(pos, neg, pos_body, neg_body)``: ``pos, neg`` with each vertex's own tolerance (the plane's
+    tilt moves a point by tilt × its distance from the plane's reference vertex; a vertex off the plane
+    by more than rounding but within that tolerance counts for both sides), and ``pos_body,
+    neg_body`` with the body's largest tolerance for all its vertices, which decides coplanarity (a
+    surface is in a plane when all of it is within that plane's uncertainty).
 
     Signed distances are taken relative to a vertex of the occluder: differences of nearby world
     coordinates are exact, so scenes far from the origin keep their precision. "Strictly" allows for
@@ -294,6 +305,8 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     n_o = len(occ_verts)
     pos = np.zeros((b_n, n_o), dtype=bool)
     neg = np.zeros((b_n, n_o), dtype=bool)
+    pos_body = np.zeros((b_n, n_o), dtype=bool)
+    neg_body = np.zeros((b_n, n_o), dtype=bool)
     valid = np.arange(k)[None, :] < body_counts[:, None]
     step = max(1, int(2e6 // max(1, n_o * k)))
     noise_b = COORD_EPS * np.abs(body_verts).max(axis=(1, 2))                           # (B,)
@@ -301,14 +314,19 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     for s in range(0, b_n, step):
         rel = body_verts[s:s + step, :, None, :] - occ_verts[None, None, :, 0, :]     # (b, K, n_o, 3)
         d = (rel * occ_normals[None, None]).sum(axis=3)                               # (b, K, n_o)
-        # per vertex: a tilt of the plane moves a point by tilt × its distance from the plane's
-        # reference vertex (the body's farthest vertex must not set the tolerance of its nearest)
-        eps = ((4 * PLANE_EPS + occ_tilt[None, None, :]) * np.abs(rel).max(axis=3)   # (b, K, n_o)
-               + noise_b[s:s + step, None, None] + noise_o[None, None, :])
+        reach = np.abs(rel).max(axis=3)                                                # (b, K, n_o)
+        noise = noise_b[s:s + step, None, None] + noise_o[None, None, :]
+        eps = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach + noise
+        eps_body = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach.max(axis=1, keepdims=True) + noise
         d = np.where(valid[s:s + step, :, None], d, 0.0)
-        pos[s:s + step] = (d > eps).any(axis=1)
-        neg[s:s + step] = (d < -eps).any(axis=1)
-    return pos, neg
+        # a vertex off the plane by more than rounding but within the plane's tilt uncertainty may be on
+        # either side: as a filter, it counts for both
+        unsure = ((np.abs(d) > 4 * PLANE_EPS * reach + noise) & (np.abs(d) <= eps)).any(axis=1)
+        pos[s:s + step] = (d > eps).any(axis=1) | unsure
+        neg[s:s + step] = (d < -eps).any(axis=1) | unsure
+        pos_body[s:s + step] = (d > eps_body).any(axis=1)
+        neg_body[s:s + step] = (d < -eps_body).any(axis=1)
+    return pos, neg, pos_body, neg_body
 
 
 def _components(scene: Scene, group: np.ndarray) -> list[np.ndarray]:

@@ -367,6 +367,19 @@ EXAMPLES = [
           [[0.0, 0.0, 1000.0], [0.0, 0.0, 1000.0]],
           [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]],
           [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]),
+    # the same with P on the middle of the sliver's base and the triangle above it: the base vertices are
+    # 1e-6 below the triangle's plane but within its uncertainty (1e-6 triangle 1e3 from the origin, 0.25
+    # away): "strictly" culled the pair, F = 0.067 instead of 0 (sum F = 1.067)
+    _case([[0.0, 0.0, 1000.0], [0.0, 0.5, 1000.0], [0.0, 0.0, 1000.00005],
+           [-2.757435090054174e-07, 0.2500001181757896, 1000.000001],
+           [-1.1948885390234753e-06, 0.25000051209508817, 1000.000001],
+           [-6.696628075845851e-07, 0.24999919903075957, 1000.000001],
+           [656532.1642986129, 262613.1157194451, 2000.0], [-262612.86571944505, 656532.4142986129, 2000.0],
+           [-656532.1642986129, -262612.6157194451, 2000.0], [262612.86571944517, -656531.9142986129, 2000.0]],
+          [[0, 1, 2], [3, 4, 5], [6, 7, 8, 9]],
+          [[0.0, 0.25, 1000.0], [0.0, 0.0, 1000.0]],
+          [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]],
+          [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]),
 ]
 
 
@@ -389,6 +402,7 @@ EXAMPLES = [
 @example(EXAMPLES[14])
 @example(EXAMPLES[15])
 @example(EXAMPLES[16])
+@example(EXAMPLES[17])
 def test_robustness(core, case):
     verts, idx, P, N, U, double = case
     note(f"full precision: verts={verts.tolist()!r} polygons={idx!r} P={P.tolist()!r} N={N.tolist()!r} "
