@@ -78,64 +78,49 @@ class TileEdges:
 
 
 def tile_edges(scene, occ) -> TileEdges:
-    """Weld every tile's members and list their unique edges (see :class:`TileEdges`)."""
+    """Weld every tile's members and list their unique edges (see :class:`TileEdges`), all tiles at once."""
     n_t = len(occ.tile_occluder)
-    verts_all, ea_all, eb_all, ie_all, ip_all, is_all, sl_all = [], [], [], [], [], [], []
-    edge_ptr = np.zeros(n_t + 1, dtype=np.int64)
-    inc_ptr = np.zeros(n_t + 1, dtype=np.int64)
-    copies = np.bincount(scene.dup_rep, minlength=scene.n_polygons) if scene.n_polygons else np.zeros(0, int)
-    no_cop = np.diff(occ.coplanar_ptr) == 0
-    eligible = np.zeros(n_t, dtype=bool)
-    v_base = 0
-    for t in range(n_t):
-        mem = occ.tile_members[occ.tile_ptr[t]:occ.tile_ptr[t + 1]]
-        eligible[t] = len(mem) > 0 and bool(((scene.dup_rep[mem] == mem) & (copies[mem] == 1) & no_cop[mem]).all())
-        cnt = scene.poly_counts[mem]
-        k = scene.poly_vertices.shape[1]
-        valid = np.arange(k)[None, :] < cnt[:, None]
-        pts = scene.poly_vertices[mem][valid]                                    # (sum counts, 3)
-        uniq, inv = np.unique(pts, axis=0, return_inverse=True)
-        inv = inv.reshape(-1)
-        # corner j of member r -> welded index; next corner cyclically
-        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-        local = np.arange(len(pts)) - np.repeat(starts, cnt)
-        nxt = np.where(local + 1 < np.repeat(cnt, cnt), np.arange(len(pts)) + 1, np.repeat(starts, cnt))
-        a, b = inv, inv[nxt]
-        lo, hi = np.minimum(a, b), np.maximum(a, b)
-        keys, e_inv = np.unique(lo * len(uniq) + hi, return_inverse=True)
-        e_inv = e_inv.reshape(-1)
-        verts_all.append(uniq)
-        ea_all.append(keys // len(uniq) + v_base)
-        eb_all.append(keys % len(uniq) + v_base)
-        ie_all.append(e_inv)
-        ip_all.append(np.repeat(mem, cnt))
-        sl_all.append(np.repeat(np.arange(len(mem)), cnt))
-        is_all.append(np.where(a == lo, 1.0, -1.0))
-        v_base += len(uniq)
-        edge_ptr[t + 1] = edge_ptr[t] + len(keys)
-        inc_ptr[t + 1] = inc_ptr[t] + len(pts)
-
-    def cat(parts, dtype):
-        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype=dtype)
-
-    inc_edge, inc_poly, inc_sign = cat(ie_all, np.int64), cat(ip_all, np.int64), cat(is_all, np.float64)
-    inc_slot = cat(sl_all, np.int64)
+    mem = occ.tile_members                                                      # members, grouped by tile
+    mem_tile = np.repeat(np.arange(n_t), np.diff(occ.tile_ptr))
+    copies = np.bincount(scene.dup_rep, minlength=scene.n_polygons)
+    ok = (scene.dup_rep[mem] == mem) & (copies[mem] == 1) & (np.diff(occ.coplanar_ptr)[mem] == 0)
+    eligible = (np.bincount(mem_tile, weights=~ok, minlength=n_t) == 0) & (np.diff(occ.tile_ptr) > 0)
+    # corners in member order; welding by exact coordinates within each tile (the tile is the first key,
+    # so welded vertices are numbered tile by tile)
+    cnt = scene.poly_counts[mem]
+    pts = scene.poly_vertices[mem][np.arange(scene.poly_vertices.shape[1])[None, :] < cnt[:, None]]
+    corner_tile = np.repeat(mem_tile, cnt)
+    uniq, inv = np.unique(np.column_stack([corner_tile, pts]), axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    n_v = len(uniq)
+    # each corner's next corner round its member
+    starts = np.repeat(np.cumsum(cnt) - cnt, cnt)
+    idx = np.arange(len(pts))
+    nxt = np.where(idx + 1 < starts + np.repeat(cnt, cnt), idx + 1, starts)
+    a, b = inv, inv[nxt]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    keys, e_inv = np.unique(lo * n_v + hi, return_inverse=True)
+    e_inv = e_inv.reshape(-1)
+    edge_a, edge_b = keys // n_v, keys % n_v
+    edge_ptr = np.concatenate([[0], np.cumsum(np.bincount(uniq[edge_a, 0].astype(np.int64), minlength=n_t))])
+    inc_ptr = np.concatenate([[0], np.cumsum(np.bincount(corner_tile, minlength=n_t))])
+    inc_edge = e_inv - edge_ptr[corner_tile]                                    # local to the tile
+    inc_poly = np.repeat(mem, cnt)
+    inc_slot = np.repeat(np.arange(len(mem)) - occ.tile_ptr[mem_tile], cnt)
+    inc_sign = np.where(a == lo, 1.0, -1.0)
     weight = None
     if not scene.linear:
         # fold the members' radiances into their edges: W_e = Σ σ L over the incidences of edge e
-        glob = inc_edge + np.repeat(edge_ptr[:-1], np.diff(inc_ptr))
-        weight = np.zeros((int(edge_ptr[-1]), 3))
-        np.add.at(weight, glob, inc_sign[:, None] * scene.poly_radiance[inc_poly])
-    first = occ.tile_members[occ.tile_ptr[:-1]] if n_t else np.zeros(0, dtype=np.int64)
+        weight = np.zeros((len(keys), 3))
+        np.add.at(weight, e_inv, inc_sign[:, None] * scene.poly_radiance[inc_poly])
+    first = mem[occ.tile_ptr[:-1]] if n_t else np.zeros(0, dtype=np.int64)
     tilt = np.zeros(n_t)
     noise = np.zeros(n_t)
-    if n_t:
-        tile_of_member = np.repeat(np.arange(n_t), np.diff(occ.tile_ptr))
-        np.maximum.at(tilt, tile_of_member, scene.poly_tilt[occ.tile_members])
-        np.maximum.at(noise, tile_of_member, scene.poly_noise[occ.tile_members])
-    return TileEdges(cat(verts_all, np.float64).reshape(-1, 3), edge_ptr, cat(ea_all, np.int64), cat(eb_all, np.int64),
-                     inc_ptr, inc_edge, inc_poly, inc_slot, inc_sign, weight, eligible,
-                     scene.poly_normals[first], scene.poly_vertices[first, 0], tilt, noise)
+    np.maximum.at(tilt, mem_tile, scene.poly_tilt[mem])
+    np.maximum.at(noise, mem_tile, scene.poly_noise[mem])
+    return TileEdges(np.ascontiguousarray(uniq[:, 1:]), edge_ptr, edge_a, edge_b, inc_ptr, inc_edge, inc_poly,
+                     inc_slot, inc_sign, weight, eligible, scene.poly_normals[first], scene.poly_vertices[first, 0],
+                     tilt, noise)
 
 
 @dataclass
