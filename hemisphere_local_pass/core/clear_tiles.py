@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .csr import expand
+from .form_factor import CANCELLATION, contour_integral
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["ClearPairs", "TileEdges", "clear_pairs", "clear_form_factors", "clear_irradiance", "tile_edges"]
@@ -218,21 +219,29 @@ def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_s
     return out
 
 
-def clear_form_factors(te: TileEdges, occ, pairs: ClearPairs, points, normals):
-    """Form factor of every member of the clear tiles: ``point, poly, side, ff, cond`` (each (R,)).
+def clear_form_factors(te: TileEdges, occ, pairs: ClearPairs, points, normals, poly_vertices):
+    """Form factor of every member of the clear tiles: ``point (R,), poly (R,), ff (R,)`` (>= 0).
 
-    ``cond`` is each member's ``Σ|t_e| / |Σ t_e|`` (the cancellation of its edge terms), for the
-    caller's extended-precision check (see :func:`.form_factor.contour_integral`).
+    A member whose edge terms cancel by more than :data:`.form_factor.CANCELLATION` (``Σ|t_e| > 250
+    |Σ t_e|``) is redone by :func:`.form_factor.contour_integral` on its own vertices
+    (``poly_vertices (n, K, 3)``, world space), with that function's extended precision: the same numbers
+    as the per-polygon path.
     """
     parts = [_clear_form_factors(te, occ, sub, points, normals) for sub in _batches(te, pairs)]
     if not parts:
         z = np.zeros(0, dtype=np.int64)
-        return z, z, np.zeros(0), np.zeros(0), np.zeros(0)
-    return tuple(np.concatenate(x) for x in zip(*parts))
+        return z, z, np.zeros(0)
+    point, poly, side, ff, cond = (np.concatenate(x) for x in zip(*parts))
+    bad = np.flatnonzero(cond > CANCELLATION)
+    if len(bad):
+        verts = poly_vertices[poly[bad]] - points[point[bad]][:, None, :]
+        ff[bad] = side[bad] * contour_integral(verts, normals[point[bad]])
+    return point, poly, np.maximum(ff, 0.0)
 
 
 def _clear_form_factors(te: TileEdges, occ, pairs: ClearPairs, points, normals):
-    """One batch of :func:`clear_form_factors`."""
+    """One batch of :func:`clear_form_factors`: ``point, poly, side, ff, cond`` (each (R,)), with ``cond``
+    each member's ``Σ|t_e| / |Σ t_e|``."""
     b, _, t = _edge_terms(te, pairs, points, normals)
     n_edges = np.diff(te.edge_ptr)[pairs.tile]
     e_start = np.cumsum(n_edges) - n_edges                                       # first term of each pair

@@ -15,7 +15,7 @@ import numpy as np
 
 from .clear_tiles import TileEdges, clear_form_factors, clear_irradiance, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
-from .form_factor import CANCELLATION, contour_integral
+from .form_factor import contour_integral
 from .projection import hemisphere_candidates
 from .scene import Scene
 from .tolerances import COORD_EPS
@@ -125,17 +125,6 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
     return frags, np.maximum(ff, 0.0), clear
 
 
-def _clear_form_factors(scene: Scene, occ: Occluders, clear, points, normals):
-    """Members of the clear tiles: ``point (R,), poly (R,), ff (R,)``, as eq. 4 per polygon would give."""
-    pairs, te = clear
-    cp, poly, side, ff, cond = clear_form_factors(te, occ, pairs, points, normals)
-    bad = np.flatnonzero(cond > CANCELLATION)
-    if len(bad):  # strongly cancelling edge terms: the per-polygon path, with its extended precision
-        verts = scene.poly_vertices[poly[bad]] - points[cp[bad]][:, None, :]
-        ff[bad] = side[bad] * contour_integral(verts, normals[cp[bad]])
-    return cp, poly, np.maximum(ff, 0.0)
-
-
 def _contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
     """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots."""
     width = frags.verts.shape[1]
@@ -204,7 +193,7 @@ def form_factors(
         frags, ff, clear = _visible(scene, p, n, u, occ, None, use_clear=True)
         point, poly = frags.point, frags.poly
         if clear is not None:
-            cp, cpoly, cff = _clear_form_factors(scene, occ, clear, p, n)
+            cp, cpoly, cff = clear_form_factors(clear[1], occ, clear[0], p, n, scene.poly_vertices)
             point, poly, ff = np.concatenate([point, cp]), np.concatenate([poly, cpoly]), np.concatenate([ff, cff])
         key = point * scene.n_input + scene.poly_source[poly]
         out[s:e] = np.bincount(key, weights=ff, minlength=(e - s) * scene.n_input).reshape(e - s, scene.n_input)
