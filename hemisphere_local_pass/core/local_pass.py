@@ -107,7 +107,7 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
         pairs = clear_pairs(te, occ, cov, sv, table, points, normals, limit)
         skip = skip | pairs.mask
         clear = (pairs, te)
-    cand = hemisphere_candidates(scene, points, normals, limit, include, occluders=occ, hidden_tiles=skip)
+    cand = hemisphere_candidates(scene, points, normals, limit, include, occ, skip)
     ptr, ids, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
     vis = np.flatnonzero(~hidden)
     frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],

@@ -130,24 +130,19 @@ def _tile_pairs(occ, points, normals, hidden_tiles):
     return tp[b], ci
 
 
-def hemisphere_candidates(scene: Scene, points, normals, limit=None, include=None, *, occluders=None,
-                          hidden_tiles=None) -> Candidates:
+def hemisphere_candidates(scene: Scene, points, normals, limit, include, occluders, hidden_tiles=None) -> Candidates:
     """Cull and clip every polygon to the upper hemisphere of every receiver.
 
     Args:
         points, normals: (m, 3) receivers; limit: (m, 3) limit directions (zero rows: none) or None.
         include: optional bool of pairs to consider at all (e.g. emitters only), broadcast to (m, n).
-        occluders: the scene's :class:`~.culling.Occluders`; with them, whole tiles are culled first
-            (horizon, and ``hidden_tiles (m, T)``: tiles known to be hidden, see
-            :func:`~.visibility.coverage`), so polygons there cost nothing.
+        occluders: the scene's :class:`~.culling.Occluders`: whole tiles are culled first (horizon, and
+            ``hidden_tiles (m, T)``: tiles known to be hidden or taken by the fast path, see
+            :func:`~.visibility.coverage`), so polygons there cost nothing here.
     Returns:
         the candidates (polygons seen edge-on, with P in their plane, are left out).
     """
-    if occluders is not None:
-        cp, ci = _tile_pairs(occluders, points, normals, hidden_tiles)
-    else:
-        m, n = len(points), scene.n_polygons
-        cp, ci = np.repeat(np.arange(m), n), np.tile(np.arange(n), m)
+    cp, ci = _tile_pairs(occluders, points, normals, hidden_tiles)
     if include is not None:
         keep = np.broadcast_to(include, (len(points), scene.n_polygons))[cp, ci]
         cp, ci = cp[keep], ci[keep]
