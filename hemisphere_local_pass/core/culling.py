@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .scene import Scene, plane_uncertainty
+from .solids import Solids, build_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
 
 __all__ = ["Occluders", "build_occluders"]
@@ -54,6 +55,11 @@ class Occluders:
             without being part of them (overlapping duplicates, reversed copies).
         first_source: (n_o,) lowest input polygon index among each occluder's members (tie-break).
         tilt, noise: (n_o,) uncertainty of each occluder's plane (see :func:`.scene.plane_uncertainty`).
+        solids: the convex solids among the occluders (:mod:`.solids`). A solid's volume is occluder
+            ``n_o + s``: the tables above have ``n_o + n_s`` columns (``beyond_*`` True for solids,
+            ``front_*`` the union over the solid's faces); occ_reach_pos, occ_reach_neg (n_o, n_o + n_s):
+            occluder (or solid) o has a vertex strictly on the positive / negative side of occluder k's
+            plane (``[k, o]``); vol_centers (n_o + n_s, 3), vol_radii: bounding spheres of all volumes.
     """
 
     vertices: np.ndarray
@@ -80,10 +86,20 @@ class Occluders:
     first_source: np.ndarray
     tilt: np.ndarray | None = None
     noise: np.ndarray | None = None
+    solids: Solids | None = None
+    occ_reach_pos: np.ndarray | None = None
+    occ_reach_neg: np.ndarray | None = None
+    vol_centers: np.ndarray | None = None
+    vol_radii: np.ndarray | None = None
 
     @property
     def n(self) -> int:
         return len(self.counts)
+
+    @property
+    def n_vol(self) -> int:
+        """Occluder columns of the tables: the merged faces, then the convex solids."""
+        return len(self.vol_radii)
 
 
 def _merge_group(scene: Scene, group: np.ndarray):
@@ -153,8 +169,12 @@ def _merge_group(scene: Scene, group: np.ndarray):
     return pts
 
 
-def build_occluders(scene: Scene) -> Occluders:
-    """Merge coplanar edge-connected convex polygons into convex occluders (exact; see module doc)."""
+def build_occluders(scene: Scene, *, solids: bool = True) -> Occluders:
+    """Merge coplanar edge-connected convex polygons into convex occluders (exact; see module doc).
+
+    With ``solids`` the convex solids among them are found too (:mod:`.solids`); without, every face
+    occludes on its own (the same result, slower; for tests and benchmarks).
+    """
     n = scene.n_polygons
     members = np.arange(n)
     loops: list[np.ndarray] = []
@@ -242,8 +262,30 @@ def build_occluders(scene: Scene) -> Occluders:
     first_source = np.full(len(loops), np.iinfo(np.int64).max)
     if n:
         np.minimum.at(first_source, members, scene.poly_source)
+    # convex solids: their volumes are extra occluder columns (see :mod:`.solids`)
+    sol = build_solids(verts, counts, normals, occ_tilt, occ_noise) if solids else no_solids()
+    fs = sol.face_solid
+
+    def per_solid(table):  # (r, n_o) -> (r, n_s): any face of the solid
+        out = np.zeros((table.shape[0], sol.n), dtype=bool)
+        if sol.n:
+            np.logical_or.at(out.T, fs, table.T[sol.face_occ])
+        return out
+
+    def with_solids(table, solid_cols):
+        return np.concatenate([table, solid_cols], axis=1)
+
+    true_n = np.ones((n, sol.n), dtype=bool)
+    true_o = np.ones((n_o, sol.n), dtype=bool)
+    beyond_pos, beyond_neg = with_solids(beyond_pos, true_n), with_solids(beyond_neg, true_n)
+    front_pos, front_neg = with_solids(front_pos, per_solid(front_pos)), with_solids(front_neg, per_solid(front_neg))
+    reach_pos = with_solids(occ_pos.T, per_solid(occ_pos.T))
+    reach_neg = with_solids(occ_neg.T, per_solid(occ_neg.T))
+    occ_pos, occ_neg = with_solids(occ_pos, true_o), with_solids(occ_neg, true_o)
     return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
-                     front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise)
+                     front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
+                     sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
+                     np.concatenate([radii, sol.radii]))
 
 
 #: target number of member polygons per tile of a merged occluder

@@ -28,6 +28,7 @@ from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, receiver_side, snap_to_receiver
+from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["Coverage", "Fragments", "ShadowVolumes", "coverage", "occluder_pairs", "shadow_volumes",
@@ -86,6 +87,11 @@ class ShadowVolumes:
     (Q, Ko, 3) P-local occluder polygon, inf (Q, Ko, 3) or None its first-order part, counts (Q,),
     normal (Q, J, 3), offset (Q, J), offset_inf (Q, J) or None, near (Q,) distance from P to the
     nearest point of the occluder's bounding sphere (for ordering).
+
+    Instances ``0..n_face-1`` are merged faces (``occluder < n_o``, also the *clusters* of their
+    member polygons), then come the convex solids' volumes (``occluder = n_o + s``, see :mod:`.solids`;
+    no vertices: ``counts`` 0). ``occludes (Q,)`` is False for a face whose solid's volume is used
+    instead at that receiver (the face still is a cluster).
     """
 
     point: np.ndarray
@@ -99,10 +105,16 @@ class ShadowVolumes:
     offset_inf: np.ndarray | None
     near: np.ndarray
     n_base: int = -1          # instances 0..n_base-1 are full volumes; the rest their cone-only copies
+    n_face: int = -1
+    occludes: np.ndarray | None = None
 
     def __post_init__(self):
         if self.n_base < 0:
             self.n_base = len(self.point)
+        if self.n_face < 0:
+            self.n_face = self.n_base
+        if self.occludes is None:
+            self.occludes = np.ones(self.n_base, dtype=bool)
 
 
 def _cone(rel_c: np.ndarray, radius: np.ndarray):
@@ -117,9 +129,10 @@ def _cone(rel_c: np.ndarray, radius: np.ndarray):
 def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowVolumes, np.ndarray]:
     """Shadow volumes of every occluder that can hide something above each receiver's horizon.
 
-    Returns the volumes and an ``(m, n_o)`` int table of instance index (-1: inactive).
+    Returns the volumes and an ``(m, n_o + n_s)`` int table of instance index (-1: inactive); columns
+    ``n_o + s`` are the convex solids (see :mod:`.solids`).
     """
-    m, n_o = len(points), occ.n
+    m = len(points)
     rel_c = occ.centers[None] - points[:, None]                                 # (m, n_o, 3)
     dist_c = np.linalg.norm(rel_c, axis=2)
     scale = dist_c + occ.radii[None]
@@ -202,13 +215,50 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
         normal[:, 1:][edge] = 0.0
         offset[:, 1:][edge] = np.where(inner[edge], -1.0, 1.0)
     near = dist_c[qp, qo] - occ.radii[qo]
-    table = np.full((m, n_o), -1, dtype=np.int64)
+    table = np.full((m, occ.n_vol), -1, dtype=np.int64)
     table[qp, qo] = np.arange(q)
     inf = None if limit is None else np.broadcast_to(-limit[qp][:, None, :], x.shape).copy()
     sv = ShadowVolumes(qp, qo, side[qp, qo], x, inf, counts, normal, offset, offset_inf, near)
+    if occ.solids is not None and occ.solids.n:
+        sv = _with_solids(sv, table, occ, points, normals, limit)
     if len(occ.coplanar_occ):
         sv = _with_cone_only(sv)
     return sv, table
+
+
+def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, normals, limit) -> ShadowVolumes:
+    """Append the volumes of the convex solids that apply at each receiver (``table`` updated in place);
+    the volumes of their faces stop occluding there (see :mod:`.solids`)."""
+    sol = occ.solids
+    sp, ss, s_normal, s_offset = solid_volumes(sol, points, normals, limit)
+    n_s = len(sp)
+    if n_s == 0:
+        return sv
+    q = len(sv.point)
+    occludes = np.ones(q + n_s, dtype=bool)
+    b, f_occ = expand(ss, sol.face_ptr, sol.face_occ)
+    inst = table[sp[b], f_occ]
+    occludes[inst[inst >= 0]] = False
+    table[sp, occ.n + ss] = q + np.arange(n_s)
+    j = max(sv.normal.shape[1], s_normal.shape[1])
+
+    def planes(a, fill):
+        pad = [(0, 0), (0, j - a.shape[1])] + [(0, 0)] * (a.ndim - 2)
+        return np.pad(a, pad, constant_values=fill)
+
+    k = sv.verts.shape[1]
+    rel = sol.centers[ss] - points[sp]
+    zeros_v = np.zeros((n_s, k, 3))
+    return ShadowVolumes(
+        np.concatenate([sv.point, sp]), np.concatenate([sv.occluder, occ.n + ss]),
+        np.concatenate([sv.side, np.ones(n_s, dtype=sv.side.dtype)]), np.concatenate([sv.verts, zeros_v]),
+        None if sv.inf is None else np.concatenate([sv.inf, zeros_v]),
+        np.concatenate([sv.counts, np.zeros(n_s, dtype=sv.counts.dtype)]),
+        np.concatenate([planes(sv.normal, 0.0), planes(s_normal, 0.0)]),
+        np.concatenate([planes(sv.offset, -1.0), planes(s_offset, -1.0)]),
+        None if sv.offset_inf is None else np.concatenate([planes(sv.offset_inf, 0.0), np.zeros((n_s, j))]),
+        np.concatenate([sv.near, np.linalg.norm(rel, axis=1) - sol.radii[ss]]),
+        n_face=q, occludes=occludes)
 
 
 def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
@@ -232,7 +282,8 @@ def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
     return ShadowVolumes(
         twice(sv.point), twice(sv.occluder), twice(sv.side), twice(sv.verts), twice(sv.inf), twice(sv.counts),
         np.concatenate([sv.normal, normal]), np.concatenate([sv.offset, offset]),
-        None if offset_inf is None else np.concatenate([sv.offset_inf, offset_inf]), twice(sv.near), len(sv.point))
+        None if offset_inf is None else np.concatenate([sv.offset_inf, offset_inf]), twice(sv.near), len(sv.point),
+        sv.n_face, sv.occludes)
 
 
 def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
@@ -300,27 +351,30 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     """
     n_q, n_o, m = sv.n_base, occ.n, len(points)
     n_tiles = len(occ.tile_occluder)
-    o_rel = occ.centers[sv.occluder] - points[sv.point]
-    ax_o, half_o, _ = _cone(o_rel, occ.radii[sv.occluder])
+    o_rel = occ.vol_centers[sv.occluder] - points[sv.point]
+    ax_o, half_o, _ = _cone(o_rel, occ.vol_radii[sv.occluder])
     if n_q == 0:
         e = np.zeros(0, dtype=np.int64)
         return Coverage(np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e, np.full((m, n_tiles), -1),
                         np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e,
                         np.zeros((m, n_tiles), dtype=bool), ax_o, half_o)
 
-    # level 1: clusters (occluder instances) against shadow volumes, dense over (instance, occluder)
-    k_occ = sv.occluder[:n_q]
-    q_tab = table[sv.point[:n_q]]                                                # (Q, n_o)
+    # level 1: clusters (face instances) against shadow volumes, dense over (instance, occluder)
+    n_k = sv.n_face
+    k_occ = sv.occluder[:n_k]
+    q_tab = table[sv.point[:n_k]]                                                # (K, n_vol)
     has = q_tab >= 0
-    sig_pos = sv.side[np.where(has, q_tab, 0)] > 0
+    q_safe = np.where(has, q_tab, 0)
+    has &= sv.occludes[q_safe]
+    sig_pos = sv.side[q_safe] > 0
     beyond = np.where(sig_pos, occ.occ_beyond_pos[k_occ], occ.occ_beyond_neg[k_occ]) & has
     # ... and the volume's occluder must reach to P's side of the cluster's plane
-    k_front_pos = sv.side[:n_q] < 0                                              # (Q,) P on the + side
-    beyond &= np.where(k_front_pos[:, None], occ.occ_beyond_pos.T[k_occ], occ.occ_beyond_neg.T[k_occ])
-    beyond[np.arange(n_q), k_occ] = False
+    k_front_pos = sv.side[:n_k] < 0                                              # (K,) P on the + side
+    beyond &= np.where(k_front_pos[:, None], occ.occ_reach_pos[k_occ], occ.occ_reach_neg[k_occ])
+    beyond[np.arange(n_k), k_occ] = False
     k_idx, o_idx = np.nonzero(beyond)
     kq = q_tab[k_idx, o_idx]
-    kept, cov = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.radii[sv.occluder], sv,
+    kept, cov = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.vol_radii[sv.occluder], sv,
                             ax_o, half_o, ax_o, half_o)
     k_idx, kq = k_idx[kept], kq[kept]
     cluster_covered = np.zeros(n_q, dtype=bool)
@@ -403,7 +457,8 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
     q = np.concatenate([q1, q2])
     if (~found).any():  # a candidate whose cluster was culled (numerically at the horizon): all volumes
         lost = np.flatnonzero(~found)
-        lb, lo = np.nonzero(table[cand.point[lost]] >= 0)
+        lt = table[cand.point[lost]]
+        lb, lo = np.nonzero((lt >= 0) & sv.occludes[np.maximum(lt, 0)])
         body = np.concatenate([body, lost[lb]])
         q = np.concatenate([q, table[cand.point[lost[lb]], lo]])
     if len(body):

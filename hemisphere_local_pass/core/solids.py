@@ -1,0 +1,308 @@
+"""Convex solids: one shadow volume for a whole convex block instead of one per face.
+
+A box standing in a room hides what is behind it through two or three of its faces at once; with one
+shadow volume per face (:mod:`.visibility`), a wall polygon behind the box is cut by two or three
+volumes in turn and its pieces multiply. For a receiver P *outside* a convex polyhedron S the union of
+its faces' shadow volumes is itself convex:
+
+    SV(S) = { x : the segment P→x meets S } = cone(P, silhouette of S) ∩ ⋂_{f facing P} beyond(f),
+
+because a ray from P enters S through a face facing P, at the largest of those faces' plane crossings
+(the planes facing P are the same for every ray). Its planes are the planes through P and the
+*silhouette edges* (edges between a face facing P and one facing away) and the depth planes of the
+faces facing P. Faces facing away from P only ever matter inside SV(S): their volumes are contained in
+it. So the volume of S replaces the volumes of all its faces at P, exactly.
+
+Which groups of merged faces (:class:`.culling.Occluders`) are convex solids is decided once per scene:
+faces connected through shared edges (identical end points, each edge in exactly two faces), every
+face's plane supporting all vertices of the group (the group lies on one side of it), at least three
+faces. A group may have one *hole* — its unshared edges all in one plane, like a box without a bottom
+standing on the floor: the hole is a missing face of the polyhedron. Per receiver the solid's volume is
+used only when P classifies strictly against every face plane (none edge-on, with a margin of several
+times the planes' uncertainty), at least one face faces P and the hole (if any) faces away from P or
+is seen edge-on — then every face facing P is present and the identity above holds. Otherwise (P
+inside the room that the walls enclose, P in or next to a face plane, P looking into the hole,
+one-sided limits) the faces' own volumes are used as before.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .tolerances import COORD_EPS, PLANE_EPS
+
+__all__ = ["Solids", "build_solids", "no_solids", "solid_volumes"]
+
+#: margin of the per-receiver classification against a solid's planes, in multiples of the plane
+#: tolerance of :func:`.projection.receiver_side` (near a plane the faces' own volumes are used)
+_MARGIN = 8.0
+
+
+@dataclass
+class Solids:
+    """Convex solids of a scene (see the module doc); ``s`` indexes solids, ``f`` their faces.
+
+    Attributes:
+        face_ptr (n_s+1,), face_occ (F,): CSR lists of each solid's merged faces (occluder indices).
+        face_out (F, 3): outward unit normals; face_point (F, 3): a vertex of each face (world);
+            face_center (F, 3): the centre of each face's vertices (world); face_tilt, face_noise (F,):
+            the plane uncertainty (see :func:`.scene.plane_uncertainty`).
+        hole (n_s,) bool; hole_out (n_s, 3), hole_point (n_s, 3): outward plane of the missing face.
+        edge_solid (E,), edge_a, edge_b (E, 3): the polyhedron's edges (world end points); edge_f (E,),
+            edge_g (E,): the two faces (flat indices into the face arrays; -1: the hole).
+        centers (n_s, 3), radii (n_s,): bounding spheres.
+    """
+
+    face_ptr: np.ndarray
+    face_occ: np.ndarray
+    face_out: np.ndarray
+    face_point: np.ndarray
+    face_center: np.ndarray
+    face_tilt: np.ndarray
+    face_noise: np.ndarray
+    hole: np.ndarray
+    hole_out: np.ndarray
+    hole_point: np.ndarray
+    edge_solid: np.ndarray
+    edge_a: np.ndarray
+    edge_b: np.ndarray
+    edge_f: np.ndarray
+    edge_g: np.ndarray
+    centers: np.ndarray
+    radii: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return len(self.face_ptr) - 1
+
+    @property
+    def face_solid(self) -> np.ndarray:
+        return np.repeat(np.arange(self.n), np.diff(self.face_ptr))
+
+    @property
+    def max_planes(self) -> int:
+        """Upper bound of the planes of one solid's volume (faces + edges of the largest solid)."""
+        if self.n == 0:
+            return 0
+        faces = np.diff(self.face_ptr)
+        edges = np.bincount(self.edge_solid, minlength=self.n)
+        return int((faces + edges).max())
+
+
+def no_solids() -> Solids:
+    """No solids (every face occludes on its own)."""
+    z3 = np.zeros((0, 3))
+    zi = np.zeros(0, dtype=np.int64)
+    return Solids(np.zeros(1, dtype=np.int64), zi, z3, z3, z3, np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool),
+                  z3, z3, zi, z3, z3, zi, zi, z3, np.zeros(0))
+
+
+def build_solids(vertices: np.ndarray, counts: np.ndarray, normals: np.ndarray, tilt: np.ndarray,
+                 noise: np.ndarray) -> Solids:
+    """Find the convex solids among merged faces ``vertices (n_o, K, 3)``, ``counts (n_o,)`` with unit
+    ``normals (n_o, 3)`` and plane uncertainty ``tilt, noise (n_o,)`` (see the module doc)."""
+    n_o = len(counts)
+    owners: dict[tuple[bytes, bytes], list[tuple[int, int]]] = {}
+    for o in range(n_o):
+        k = int(counts[o])
+        keys = [v.tobytes() for v in vertices[o, :k]]
+        for j in range(k):
+            a, b = keys[j], keys[(j + 1) % k]
+            owners.setdefault((a, b) if a < b else (b, a), []).append((o, j))
+    parent = list(range(n_o))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    bad = set()
+    for lst in owners.values():
+        if len(lst) > 2:
+            bad.update(o for o, _ in lst)
+        elif len(lst) == 2:
+            ra, rb = find(lst[0][0]), find(lst[1][0])
+            if ra != rb:
+                parent[ra] = rb
+    groups: dict[int, list[int]] = {}
+    for o in range(n_o):
+        groups.setdefault(find(o), []).append(o)
+
+    solids = []
+    for grp in groups.values():
+        if len(grp) < 3 or any(o in bad for o in grp):
+            continue
+        s = _convex_solid(grp, vertices, counts, normals, tilt, noise, owners)
+        if s is not None:
+            solids.append(s)
+    if not solids:
+        return no_solids()
+    face_occ, face_out, hole, hole_out, hole_point, edges, centers, radii = [], [], [], [], [], [], [], []
+    face_ptr = [0]
+    for grp, outs, h, (ea, eb, ef, eg), c, r in solids:
+        base = face_ptr[-1]
+        face_occ += grp
+        face_out.append(outs)
+        face_ptr.append(base + len(grp))
+        hole.append(h is not None)
+        hole_out.append(h[0] if h is not None else np.zeros(3))
+        hole_point.append(h[1] if h is not None else np.zeros(3))
+        edges.append((np.full(len(ea), len(face_ptr) - 2), ea, eb, ef + base, np.where(eg >= 0, eg + base, -1)))
+        centers.append(c)
+        radii.append(r)
+    face_occ = np.array(face_occ, dtype=np.int64)
+    k_idx = np.arange(vertices.shape[1])[None, :] < counts[face_occ][:, None]
+    face_center = (vertices[face_occ] * k_idx[..., None]).sum(axis=1) / counts[face_occ][:, None]
+    return Solids(
+        np.array(face_ptr, dtype=np.int64), face_occ, np.concatenate(face_out), vertices[face_occ, 0].copy(),
+        face_center, tilt[face_occ], noise[face_occ], np.array(hole), np.array(hole_out), np.array(hole_point),
+        np.concatenate([e[0] for e in edges]), np.concatenate([e[1] for e in edges]),
+        np.concatenate([e[2] for e in edges]), np.concatenate([e[3] for e in edges]),
+        np.concatenate([e[4] for e in edges]), np.array(centers), np.array(radii))
+
+
+def _convex_solid(grp, vertices, counts, normals, tilt, noise, owners):
+    """``(faces, outward normals, hole or None, edges, centre, radius)`` if the group is a convex solid."""
+    pts = np.concatenate([vertices[o, : counts[o]] for o in grp])
+    center = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    radius = float(np.linalg.norm(pts - center, axis=1).max())
+    size = 2.0 * radius
+    g_noise = COORD_EPS * float(np.abs(pts).max())
+    outs = []
+    for o in grp:
+        d = (pts - vertices[o, 0]) @ normals[o]
+        tol = (4 * PLANE_EPS + tilt[o]) * size + 2 * g_noise
+        if d.max() <= tol and d.min() < -_MARGIN * tol:
+            outs.append(normals[o])
+        elif d.min() >= -tol and d.max() > _MARGIN * tol:
+            outs.append(-normals[o])
+        else:
+            return None  # the group lies on both sides of this face's plane (or is flat): not convex
+    local = {o: i for i, o in enumerate(grp)}
+    ea, eb, ef, eg = [], [], [], []
+    boundary = []
+    for o in grp:
+        k = int(counts[o])
+        for j in range(k):
+            a, b = vertices[o, j], vertices[o, (j + 1) % k]
+            ka, kb = a.tobytes(), b.tobytes()
+            lst = owners[(ka, kb) if ka < kb else (kb, ka)]
+            if len(lst) == 1:
+                boundary.append((a, b))
+                ea.append(a), eb.append(b), ef.append(local[o]), eg.append(-1)
+            else:
+                other = lst[0][0] if lst[0][0] != o else lst[1][0]
+                if other not in local:
+                    return None
+                if local[other] > local[o]:  # each shared edge once
+                    ea.append(a), eb.append(b), ef.append(local[o]), eg.append(local[other])
+    hole = None
+    if boundary:
+        bp = np.array(boundary)                                           # (B, 2, 3)
+        newell = np.cross(bp[:, 0] - center, bp[:, 1] - center).sum(axis=0)
+        length = float(np.linalg.norm(newell))
+        if not length > 0:
+            return None
+        hn = newell / length
+        hp = bp[0, 0]
+        if np.dot(center - hp, hn) > 0:
+            hn = -hn
+        d_b = (bp.reshape(-1, 3) - hp) @ hn
+        d_all = (pts - hp) @ hn
+        # the unshared edges must lie in one plane (a missing planar face) that supports the group
+        tol_h = max(4 * PLANE_EPS * size + 2 * g_noise, 64 * np.finfo(np.float64).eps * size)
+        if np.abs(d_b).max() > tol_h or d_all.max() > tol_h or d_all.min() >= -_MARGIN * tol_h:
+            return None
+        hole = (hn, hp)
+    return (list(grp), np.array(outs), hole,
+            (np.array(ea), np.array(eb), np.array(ef, dtype=np.int64), np.array(eg, dtype=np.int64)),
+            center, radius)
+
+
+def solid_volumes(sol: Solids, points: np.ndarray, normals: np.ndarray, limit: np.ndarray | None):
+    """Shadow volumes of the solids that apply at each receiver (see the module doc).
+
+    Args:
+        points, normals: (m, 3) receivers; limit: (m, 3) limit directions or None (rows with a limit
+            direction do not use solids).
+    Returns:
+        ``(qp, qs, normal, offset)``: receiver (Q,) and solid (Q,) of every solid volume, its planes
+        ``normal (Q, J, 3)``, ``offset (Q, J)`` (P-local; inside when ``normal . x - offset > 0`` for
+        every plane; unused slots: zero normal, offset -1).
+    """
+    m = len(points)
+    empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 1, 3)), np.zeros((0, 1)))
+    if sol.n == 0 or m == 0:
+        return empty
+    fs = sol.face_solid
+    rel_f = sol.face_point[None] - points[:, None]                                  # (m, F, 3)
+    d = -np.einsum("mfc,fc->mf", rel_f, sol.face_out)                              # out . (P - x_f)
+    rel_c = sol.centers[None] - points[:, None]                                     # (m, n_s, 3)
+    dist_c = np.linalg.norm(rel_c, axis=2)
+    scale = (dist_c + sol.radii[None])[:, fs]                                       # (m, F)
+    p_noise = COORD_EPS * np.abs(points).max(axis=1)[:, None]
+    tol = _MARGIN * ((PLANE_EPS + sol.face_tilt[None]) * scale + sol.face_noise[None] + p_noise)
+    front = d > tol
+    decided = front | (d < -tol)
+    starts = sol.face_ptr[:-1]
+    ok = np.logical_and.reduceat(decided, starts, axis=1) & np.logical_or.reduceat(front, starts, axis=1)
+    if sol.hole.any():
+        d_h = np.einsum("msc,sc->ms", sol.hole_point[None] - points[:, None], sol.hole_out)   # -out.(P - x_h)
+        tol_h = _MARGIN * (PLANE_EPS * (dist_c + sol.radii[None]) + p_noise + COORD_EPS * np.abs(sol.hole_point).max(
+            axis=1)[None])
+        # P behind the hole's plane, or in it (P on the floor a box without a bottom stands on: the
+        # missing face is seen edge-on and only polygons in that plane, which P sees edge-on too,
+        # could tell the difference)
+        ok &= ~sol.hole[None] | (d_h > -tol_h)
+    # something of the solid above the receiver's horizon (else it hides nothing there)
+    height_c = np.einsum("msc,mc->ms", rel_c, normals)
+    ok &= height_c + sol.radii[None] > PLANE_EPS * (dist_c + sol.radii[None])
+    if limit is not None:
+        ok &= ~limit.any(axis=1)[:, None]
+    qp, qs = np.nonzero(ok)
+    if len(qp) == 0:
+        return empty
+    inst = np.full((m, sol.n), -1, dtype=np.int64)
+    inst[qp, qs] = np.arange(len(qp))
+    # depth planes of the faces facing P: inside = beyond (on the solid's side, away from P)
+    fp, ff = np.nonzero(front & ok[:, fs])
+    fq = inst[fp, fs[ff]]
+    f_normal = -sol.face_out[ff]
+    f_offset = d[fp, ff]
+    # silhouette edges: between a face facing P and one facing away (or the hole)
+    es = sol.edge_solid
+    e_front_f = front[:, sol.edge_f]
+    e_front_g = np.where(sol.edge_g[None] >= 0, front[:, np.maximum(sol.edge_g, 0)], False)
+    ep, ee = np.nonzero((e_front_f != e_front_g) & ok[:, es])
+    eq = inst[ep, es[ee]]
+    a = sol.edge_a[ee] - points[ep]
+    b = sol.edge_b[ee] - points[ep]
+    c = np.cross(a, b)
+    cn = np.linalg.norm(c, axis=1)
+    inner = np.where(e_front_f[ep, ee], sol.edge_f[ee], sol.edge_g[ee])           # the face facing P
+    toward = np.einsum("ec,ec->e", c, sol.face_center[inner] - points[ep])
+    sgn = np.sign(toward)
+    good = (cn > 1e3 * PLANE_EPS * np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)) & (
+        np.abs(toward) > 1e3 * PLANE_EPS * cn * np.linalg.norm(sol.face_center[inner] - points[ep], axis=1))
+    # a nearly degenerate silhouette plane (P almost on an edge's line): the faces' volumes are used
+    drop = np.zeros(len(qp), dtype=bool)
+    drop[eq[~good]] = True
+    e_normal = sgn[:, None] * c / np.where(good, cn, 1.0)[:, None]
+    plane_q = np.concatenate([fq, eq])
+    plane_n = np.concatenate([f_normal, e_normal])
+    plane_o = np.concatenate([f_offset, np.zeros(len(eq))])
+    order = np.argsort(plane_q, kind="stable")
+    plane_q, plane_n, plane_o = plane_q[order], plane_n[order], plane_o[order]
+    n_planes = np.bincount(plane_q, minlength=len(qp))
+    first = np.cumsum(n_planes) - n_planes
+    slot = np.arange(len(plane_q)) - first[plane_q]
+    j = int(n_planes.max())
+    normal = np.zeros((len(qp), j, 3))
+    offset = np.full((len(qp), j), -1.0)
+    normal[plane_q, slot] = plane_n
+    offset[plane_q, slot] = plane_o
+    keep = ~drop
+    return qp[keep], qs[keep], normal[keep], offset[keep]
