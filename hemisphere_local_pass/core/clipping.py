@@ -103,6 +103,7 @@ def split_convex(
     inf: np.ndarray | None = None,
     s_inf: np.ndarray | None = None,
     origin_edges: np.ndarray | None = None,
+    outside: bool = True,
 ):
     """Split convex polygons by a plane given through the signed distances of their vertices.
 
@@ -116,6 +117,7 @@ def split_convex(
         origin_edges: (F, K) bool or None: edges ``j -> j+1`` whose line passes through the origin, for a
             plane through the origin: their crossing is the origin itself (exactly; interpolating a
             grazing edge would leave it far off by the rounding of the distances).
+        outside: False to build the inside pieces only (the outside is then None).
     Returns:
         ``(inside, outside)``, each a tuple ``(verts (F, W, 3), counts (F,), inf or None)`` with
         ``W >= K+1`` (K+1 for convex input); a side's count is 0 where it is empty.
@@ -180,7 +182,7 @@ def split_convex(
     keep_cross = np.zeros((f, 2 * k), dtype=bool)
     keep_cross[:, 1::2] = crossing
     keeps = []
-    for ok, keep_side in ((in_ok, side >= 0), (out_ok, side <= 0)):
+    for ok, keep_side in ((in_ok, side >= 0), (out_ok, side <= 0))[: 2 if outside else 1]:
         keep = keep_cross.copy()
         keep[:, 0::2] = valid & keep_side
         keep &= ok[:, None]
@@ -195,10 +197,10 @@ def split_convex(
     # a polygon that lies wholly on one side is passed through unchanged (no rounding at all)
     whole_in = in_ok & ~any_out
     whole_out = ~any_in
-    for res, whole in ((results[0], whole_in), (results[1], whole_out)):
+    for res, whole in zip(results, (whole_in, whole_out)):
         if whole.any():
             res[0][whole] = pad_repeat_last(verts[whole], counts[whole], width)
             res[1][whole] = counts[whole]
             if dual:
                 res[2][whole] = pad_repeat_last(inf[whole], counts[whole], width)
-    return results[0], results[1]
+    return results[0], results[1] if outside else None

@@ -19,7 +19,7 @@ from .form_factor import contour_integral
 from .projection import hemisphere_candidates
 from .scene import Scene
 from .tolerances import COORD_EPS
-from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes
+from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes, visible_terms
 
 __all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_with_ff"]
 
@@ -93,8 +93,10 @@ def _tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
 
 
 def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool):
-    """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` the clear tiles (see
-    :mod:`.clear_tiles`) are left out of the fragments and returned as ``clear = (pairs, tile_edges)``."""
+    """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
+    fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
+    ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
+    :func:`.visibility.visible_terms`): ``ff`` is then negative for the terms to subtract."""
     reps = scene.dup_rep == np.arange(scene.n_polygons)
     if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
         include = reps[None, :] if include is None else include & reps[None, :]
@@ -112,7 +114,10 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
     vis = np.flatnonzero(~hidden)
     frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
                       cand.point[vis], cand.poly[vis], cand.side[vis], vis)
-    frags = subtract_shadow_volumes(frags, ptr, ids, sv)
+    if use_clear:
+        frags, sign = visible_terms(frags, ptr, ids, sv)
+    else:
+        frags, sign = subtract_shadow_volumes(frags, ptr, ids, sv), None
     ff = frags.side * _contour_by_width(frags, normals, points)
     if not reps.all():
         # credit each fragment to the copy that faces the receiver (then the lowest index)
@@ -122,7 +127,8 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
         frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
         frags.side = np.where(use_opp, -frags.side, frags.side)
     # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
-    return frags, np.maximum(ff, 0.0), clear
+    ff = np.maximum(ff, 0.0)
+    return frags, ff if sign is None else sign * ff, clear
 
 
 def _contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
@@ -197,8 +203,9 @@ def form_factors(
             point, poly, ff = np.concatenate([point, cp]), np.concatenate([poly, cpoly]), np.concatenate([ff, cff])
         key = point * scene.n_input + scene.poly_source[poly]
         out[s:e] = np.bincount(key, weights=ff, minlength=(e - s) * scene.n_input).reshape(e - s, scene.n_input)
-        # a polygon can fill the hemisphere (F = 1 exactly); the fragment sum may round to 1 + 2e-16
-        np.minimum(out[s:e], 1.0, out=out[s:e])
+        # a polygon can fill the hemisphere (F = 1 exactly); the fragment sum may round to 1 + 2e-16, and
+        # a hidden polygon's terms (F(A) - F(A ∩ V)) to -1e-17
+        np.clip(out[s:e], 0.0, 1.0, out=out[s:e])
 
     _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
     return out

@@ -32,7 +32,7 @@ from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["Coverage", "Fragments", "ShadowVolumes", "coverage", "occluder_pairs", "shadow_volumes",
-           "subtract_shadow_volumes"]
+           "subtract_shadow_volumes", "visible_terms"]
 
 
 @dataclass
@@ -636,3 +636,96 @@ def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
         return v[:, :width]
     return np.concatenate([v, np.repeat(v[:, -1:], width - v.shape[1], axis=1)], axis=1)
 
+
+
+#: candidates cut by at most this many volumes take the inclusion–exclusion path (2^k - 1 clip chains);
+#: the rest are subtracted (see :func:`visible_terms`). One: with two volumes the terms' separate
+#: on-plane decisions can disagree on a sliver of their overlap (a term dropped as empty that the
+#: other terms count), which the subtraction, deciding once per piece, cannot do
+IE_MAX_VOLUMES = 1
+
+
+def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes):
+    """The visible part of every fragment as a signed sum of convex pieces (for sums over fragments).
+
+    By inclusion–exclusion ``A \\ (V_1 ∪ … ∪ V_k) = A − Σ A∩V_i + Σ A∩V_i∩V_j − …`` as signed measures:
+    every term is one convex polygon, ``A`` clipped to the inside of each volume of a subset in turn
+    (no pieces to keep track of, as :func:`subtract_shadow_volumes` needs). Fragments with more than
+    :data:`IE_MAX_VOLUMES` volumes are subtracted instead (2^k terms grow faster than the pieces).
+    A term's clips are the same plane splits as the subtraction's, so ``A`` minus its inside pieces is
+    the subtraction's outside pieces to rounding.
+
+    Returns ``(terms, sign)``: fragments and ``sign (F,)`` float64 (+1 or -1) to weight their integrals.
+    """
+    n_occ = np.diff(ptr)[frags.owner]
+    many = n_occ > IE_MAX_VOLUMES
+    if frags.inf is not None:
+        # one-sided limits: fragments touching P are integrated from first-order directions, and a
+        # difference of two such integrals is not as accurate as the integrals of the pieces
+        many[:] = True
+    parts = [frags.take(~many)]
+    signs = [np.ones(int((~many).sum()))]
+    if many.any():
+        sub = subtract_shadow_volumes(frags.take(many), ptr, ids, sv)
+        parts.append(sub)
+        signs.append(np.ones(len(sub.owner)))
+    few = np.flatnonzero((n_occ > 0) & ~many)
+    # level 1: every (fragment, volume) pair; then each term grows by a volume after its last one
+    rows = np.repeat(few, n_occ[few])
+    pos = np.arange(len(rows)) - np.repeat(np.cumsum(n_occ[few]) - n_occ[few], n_occ[few])
+    cur = frags.take(rows)
+    sign = -1.0
+    while len(rows):
+        cur, kept = _clip_into_volumes(cur, ids[ptr[cur.owner] + pos], sv)
+        rows, pos = rows[kept], pos[kept]
+        parts.append(cur)
+        signs.append(np.full(len(kept), sign))
+        # extend each term by every later volume of its fragment
+        more = n_occ[rows] - 1 - pos
+        ext = np.repeat(np.arange(len(rows)), more)
+        step = np.arange(len(ext)) - np.repeat(np.cumsum(more) - more, more) + 1
+        rows, pos = rows[ext], pos[ext] + step
+        cur = cur.take(ext)
+        sign = -sign
+    return Fragments.concat(parts), np.concatenate(signs)
+
+
+def _clip_into_volumes(frags: Fragments, q: np.ndarray, sv: ShadowVolumes):
+    """Clip every fragment to the inside of its volume ``q (F,)``: ``(clipped, kept)`` where ``kept``
+    indexes the fragments with a non-empty inside (a vertex strictly inside every plane)."""
+    dual = frags.inf is not None
+    kept = np.arange(len(q))
+    v, inf, c = frags.verts, frags.inf, frags.counts
+    scale = np.abs(v).max(axis=(1, 2))
+    for j in range(sv.normal.shape[1]):
+        if not len(kept):
+            break
+        real = (sv.normal[q, j] != 0).any(axis=1)             # unused plane slots are always inside
+        rr = np.flatnonzero(real)
+        if not len(rr):
+            continue
+        side, s_re, s_inf, eps = _plane_sides(v[rr], None if not dual else inf[rr], c[rr], scale[rr], sv, q[rr], j)
+        has_in = (side > 0).any(axis=1)
+        cut = has_in & (side < 0).any(axis=1)
+        if cut.any():
+            rc = rr[cut]
+            k = int(c[rc].max())
+            (iv, ic, ii), _ = split_convex(v[rc, :k], c[rc], s_re[cut, :k], eps[cut],
+                                           inf=inf[rc, :k] if dual else None,
+                                           s_inf=s_inf[cut, :k] if dual else None, outside=False)
+            w = iv.shape[1]
+            if w > v.shape[1]:  # (the arrays are the caller's private copies: changed in place)
+                v = _fit(v, c, w)
+                inf = _fit(inf, c, w) if dual else None
+            v[rc, :w] = iv
+            v[rc, w:] = iv[:, -1:]
+            if dual:
+                inf[rc, :w] = ii
+                inf[rc, w:] = ii[:, -1:]
+            c[rc] = ic
+        keep = np.ones(len(q), dtype=bool)
+        keep[rr[~has_in]] = False
+        if not keep.all():
+            kept, q, v, c, scale = kept[keep], q[keep], v[keep], c[keep], scale[keep]
+            inf = inf[keep] if dual else None
+    return Fragments(v, inf, c, frags.point[kept], frags.poly[kept], frags.side[kept], frags.owner[kept]), kept
