@@ -21,6 +21,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pytest
 
 SUM_TOL = 1e-10
 
@@ -360,3 +361,28 @@ def test_triangles_of_a_non_planar_face_are_not_merged_into_one_occluder(core):
     without = _ff(core, case, polygons=list(range(13)))[0]
     assert abs(without.sum() - 1.0) <= SUM_TOL
     assert abs(F[12] - without[12]) <= 1e-13  # the hidden 14th polygon changes nothing
+
+
+TINY_ACROSS_PLANE_THROUGH_P_LIMIT = dict(
+    verts=[[0.0, 0.0, 0.0], [0.0, 700000.0, 100000.0], [0.0, -700000.0, -100000.0],
+           [707106.7811865475, -799999.9999999999, 600000.0], [707106.7811865475, 600000.0, 799999.9999999999],
+           [1e-06, -4.242640687119286e-08, 2.9698484809834996e-07],
+           [1e-06, -1.8384776310850236e-07, 1.2869343417595165e-06],
+           [1e-06, -1.0323759005323595e-06, 1.5556349186104045e-07],
+           [1000.0, 565685.424949238, -424264.0687119285], [1000.0, 424264.06871192844, 565685.4249492381],
+           [1000.0, -565685.424949238, 424264.0687119285], [1000.0, -424264.0687119287, -565685.4249492381]],
+    polygons=[[1, 2, 3, 4], [5, 6, 7], [8, 9, 10, 11]],
+    P=[[0.0, 0.0, 0.0]],
+    N=[[1.0, 0.0, 0.0]],
+    U=[[0.0, -1.0, 0.0]],
+)
+
+
+@pytest.mark.xfail(strict=True, reason="open: found 2026-11-22 by a random (dev-profile) run of the property "
+                   "test; main before the solids (5786fb3) fails the same way; not yet explained")
+def test_tiny_triangle_across_a_plane_through_p_in_the_limit(core):
+    """A huge quad whose plane contains P (an edge through P) seen in the one-sided limit, a 1e-6
+    triangle next to P straddling that plane, and a huge quad beyond: sum F = 1.064 (F = 0.854, 0.067,
+    0.144) — the triangle's part is counted twice."""
+    F = _ff(core, TINY_ACROSS_PLANE_THROUGH_P_LIMIT)[0]
+    assert F.sum() <= 1 + SUM_TOL, F.sum()
