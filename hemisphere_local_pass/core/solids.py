@@ -81,15 +81,6 @@ class Solids:
     def face_solid(self) -> np.ndarray:
         return np.repeat(np.arange(self.n), np.diff(self.face_ptr))
 
-    @property
-    def max_planes(self) -> int:
-        """Upper bound of the planes of one solid's volume (faces + edges of the largest solid)."""
-        if self.n == 0:
-            return 0
-        faces = np.diff(self.face_ptr)
-        edges = np.bincount(self.edge_solid, minlength=self.n)
-        return int((faces + edges).max())
-
 
 def no_solids() -> Solids:
     """No solids (every face occludes on its own)."""

@@ -589,16 +589,7 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
                     cur_v[cut, :k], cur_c[cut], s_re[cut, :k], eps[cut],
                     inf=cur_i[cut, :k] if dual else None, s_inf=s_inf[cut, :k] if dual else None)
                 pieces.append((item[cut], ov, oc, oi))
-                w = iv.shape[1]
-                if w > cur_v.shape[1]:  # only where rounding made a fragment cross more than twice
-                    cur_v = _fit(cur_v, cur_c, w)
-                    cur_i = _fit(cur_i, cur_c, w) if dual else None
-                cur_v[cut, :w] = iv
-                cur_v[cut, w:] = iv[:, -1:]
-                if dual:
-                    cur_i[cut, :w] = ii
-                    cur_i[cut, w:] = ii[:, -1:]
-                cur_c[cut] = ic
+                cur_v, cur_i = _store_pieces(cur_v, cur_i, cur_c, cut, iv, ii, ic)
                 cut_before[item[cut]] = True
             item, cur_v, cur_c = item[has_in], cur_v[has_in], cur_c[has_in]
             cur_i = cur_i[has_in] if dual else None
@@ -616,6 +607,23 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
         r += 1
     done.append(work)
     return Fragments.concat(done)
+
+
+def _store_pieces(v, inf, c, rows, iv, ii, ic):
+    """Write clipped pieces ``iv (r, w, 3)`` (``ii`` their first-order parts or None, ``ic`` counts) into
+    rows ``rows`` of ``v, inf, c`` in place, widening ``v`` and ``inf`` if a piece is wider (only where
+    rounding made a fragment cross a plane more than twice); returns ``(v, inf)``."""
+    w = iv.shape[1]
+    if w > v.shape[1]:
+        v = _fit(v, c, w)
+        inf = None if inf is None else _fit(inf, c, w)
+    v[rows, :w] = iv
+    v[rows, w:] = iv[:, -1:]
+    if inf is not None:
+        inf[rows, :w] = ii
+        inf[rows, w:] = ii[:, -1:]
+    c[rows] = ic
+    return v, inf
 
 
 def _zero_pad(a: np.ndarray, width: int) -> np.ndarray:
@@ -713,16 +721,7 @@ def _clip_into_volumes(frags: Fragments, q: np.ndarray, sv: ShadowVolumes):
             (iv, ic, ii), _ = split_convex(v[rc, :k], c[rc], s_re[cut, :k], eps[cut],
                                            inf=inf[rc, :k] if dual else None,
                                            s_inf=s_inf[cut, :k] if dual else None, outside=False)
-            w = iv.shape[1]
-            if w > v.shape[1]:  # (the arrays are the caller's private copies: changed in place)
-                v = _fit(v, c, w)
-                inf = _fit(inf, c, w) if dual else None
-            v[rc, :w] = iv
-            v[rc, w:] = iv[:, -1:]
-            if dual:
-                inf[rc, :w] = ii
-                inf[rc, w:] = ii[:, -1:]
-            c[rc] = ic
+            v, inf = _store_pieces(v, inf, c, rc, iv, ii, ic)  # (the caller's private copies)
         keep = np.ones(len(q), dtype=bool)
         keep[rr[~has_in]] = False
         if not keep.all():
