@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .rowops import any_rows, nonzero_rows, sides, sum_rows
 from .tolerances import PLANE_EPS
 
 __all__ = ["classify", "pad_repeat_last", "split_convex"]
@@ -38,11 +39,11 @@ def classify(s_re: np.ndarray, eps: np.ndarray, s_inf: np.ndarray | None = None)
     Returns:
         (F, K) int8.
     """
-    side = np.where(s_re > eps[:, None], 1, np.where(s_re < -eps[:, None], -1, 0)).astype(np.int8)
+    side = sides(s_re, eps[:, None])
     if s_inf is not None:
         on = side == 0
         if on.any():
-            side[on] = np.where(s_inf[on] > PLANE_EPS, 1, np.where(s_inf[on] < -PLANE_EPS, -1, 0))
+            side[on] = sides(s_inf[on], PLANE_EPS)
     return side
 
 
@@ -57,7 +58,7 @@ def _gather_slots(verts: np.ndarray, idx: np.ndarray) -> np.ndarray:
     ``take_along_axis``, which broadcasts index grids)."""
     f, k, _ = verts.shape
     flat = (np.arange(f)[:, None] * k + idx).ravel()
-    return verts.reshape(-1, 3)[flat].reshape(f, idx.shape[1], 3)
+    return np.take(verts.reshape(-1, 3), flat, axis=0).reshape(f, idx.shape[1], 3)
 
 
 def _resolve_isolated_zeros(side: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -83,14 +84,20 @@ def _resolve_isolated_zeros(side: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return out
 
 
-def _compact(cand: np.ndarray, keep: np.ndarray, width: int):
+def _compact(cand: np.ndarray, keep: np.ndarray, width: int, counts: np.ndarray):
     """Pack the kept slots of ``cand (F, S, 3)`` left, padded to ``width`` by repeating the last
-    (``width <= S``); rows with nothing kept are all zeros."""
-    counts = keep.sum(axis=1)
-    order = np.argsort(~keep, axis=1, kind="stable")                  # kept slots first, in order
-    rank = np.minimum(np.arange(width)[None, :], np.maximum(counts, 1)[:, None] - 1)
-    out = _gather_slots(cand, np.take_along_axis(order, rank, axis=1))
-    out[counts == 0] = 0.0
+    (``width <= S``; ``counts (F,)``: kept slots per row); rows with nothing kept are all zeros."""
+    f, s = keep.shape
+    flat = np.flatnonzero(keep)                                       # kept slots, row by row, in order
+    row = flat // s
+    first = np.cumsum(counts) - counts                                # position in ``flat`` of each row's first
+    full = counts > 0
+    last = np.zeros(f, dtype=np.int64)
+    last[full] = flat[first[full] + counts[full] - 1]
+    src = np.repeat(last[:, None], width, axis=1)                     # flat source slot of every output slot
+    src.ravel()[row * width + (np.arange(len(flat)) - first[row])] = flat
+    out = np.take(cand.reshape(-1, 3), src.ravel(), axis=0).reshape(f, width, 3)
+    out[~full] = 0.0
     return out, counts
 
 
@@ -126,19 +133,21 @@ def split_convex(
     dual = inf is not None
     side = classify(s_re, eps, s_inf if dual else None)
     valid = np.arange(k)[None, :] < counts[:, None]
-    side = np.where(valid, side, 0)
-    any_in = (side > 0).any(axis=1)
-    any_out = (side < 0).any(axis=1)
+    side = side * valid
+    any_in = any_rows(side > 0)
+    any_out = any_rows(side < 0)
     in_ok = any_in
     out_ok = any_out | ~any_in
     # On-plane vertices bound both pieces. Rounding can put a vertex "on" the plane between two
     # neighbours on the same side — impossible for a convex polygon, and it would make both pieces
     # contain a sliver; such a vertex takes its neighbours' side.
-    mixed = any_in & any_out & (valid & (side == 0)).any(axis=1)
+    mixed = any_in & any_out & any_rows(valid & (side == 0))
     if mixed.any():
         side[mixed] = _resolve_isolated_zeros(side[mixed], counts[mixed])
-    nxt = np.where(np.arange(k)[None, :] + 1 < counts[:, None], np.arange(k)[None, :] + 1, 0)  # (F, K)
-    side_n = np.take_along_axis(side, nxt, axis=1)
+    # side of the next vertex round each polygon (padding slots have side 0)
+    side_n = np.concatenate([side[:, 1:], side[:, :1]], axis=1)
+    short = np.flatnonzero((counts < k) & (counts > 0))
+    side_n.ravel()[short * k + counts[short] - 1] = side[short, 0]
     crossing = valid & (side * side_n < 0)
 
     cand_v = np.zeros((f, 2 * k, 3))
@@ -148,36 +157,40 @@ def split_convex(
         cand_inf = np.zeros((f, 2 * k, 3))
         cand_inf[:, 0::2] = inf
     if crossing.any():
-        r, j = np.nonzero(crossing)
-        jn = nxt[r, j]
-        a0 = s_re[r, j]
-        b0 = s_re[r, jn]
+        r, j = nonzero_rows(crossing)
+        jn = np.where(j + 1 < counts[r], j + 1, 0)
+        at, an = r * k + j, r * k + jn                                    # flat slots of both ends
+        a0 = np.take(s_re.ravel(), at)
+        b0 = np.take(s_re.ravel(), an)
         e = eps[r]
         # real parts within tolerance count as zero, so that a vertex whose side came from its
         # first-order part interpolates consistently (and an on-plane vertex is its own crossing)
         a0 = np.where(np.abs(a0) > e, a0, 0.0)
         b0 = np.where(np.abs(b0) > e, b0, 0.0)
-        xa, xb = verts[r, j], verts[r, jn]
+        flat_v = verts.reshape(-1, 3)
+        xa, xb = np.take(flat_v, at, axis=0), np.take(flat_v, an, axis=0)
+        dest = r * (2 * k) + 2 * j + 1                                    # flat slot of the crossing
         if dual:
-            a1, b1 = s_inf[r, j], s_inf[r, jn]
+            a1, b1 = np.take(s_inf.ravel(), at), np.take(s_inf.ravel(), an)
             both0 = (a0 == 0.0) & (b0 == 0.0)
             den0 = np.where(both0, 1.0, a0 - b0)
             den1 = np.where(both0 & (a1 != b1), a1 - b1, 1.0)
             t0 = np.where(both0, np.where(a1 != b1, a1 / den1, 0.0), a0 / den0)
             t1 = np.where(both0, 0.0, (a0 * b1 - a1 * b0) / (den0 * den0))
-            ia, ib = inf[r, j], inf[r, jn]
-            cand_inf[r, 2 * j + 1] = ia + t0[:, None] * (ib - ia) + t1[:, None] * (xb - xa)
+            flat_i = inf.reshape(-1, 3)
+            ia, ib = np.take(flat_i, at, axis=0), np.take(flat_i, an, axis=0)
+            cand_inf.reshape(-1, 3)[dest] = ia + t0[:, None] * (ib - ia) + t1[:, None] * (xb - xa)
         else:
             same = a0 == b0  # both rounded onto the plane (a resolved zero next to another)
             t0 = np.where(same, 0.0, a0 / np.where(same, 1.0, a0 - b0))
         # interpolate from the endpoint nearer the plane: the new vertex then stays within one
         # rounding of the plane whichever way the edge is walked (neighbours share the point)
         near_a = np.abs(a0) <= np.abs(b0)
-        cand_v[r, 2 * j + 1] = np.where(near_a[:, None], xa + t0[:, None] * (xb - xa),
-                                        xb + (1.0 - t0)[:, None] * (xa - xb))
+        cand_v.reshape(-1, 3)[dest] = np.where(near_a[:, None], xa + t0[:, None] * (xb - xa),
+                                               xb + (1.0 - t0)[:, None] * (xa - xb))
         if origin_edges is not None:
-            at = origin_edges[r, j]
-            cand_v[r[at], 2 * j[at] + 1] = 0.0
+            through = np.take(origin_edges.ravel(), at)
+            cand_v.reshape(-1, 3)[dest[through]] = 0.0
 
     keep_cross = np.zeros((f, 2 * k), dtype=bool)
     keep_cross[:, 1::2] = crossing
@@ -188,11 +201,12 @@ def split_convex(
         keep &= ok[:, None]
         keeps.append(keep)
     # a convex polygon gains at most one vertex; rounding can make a nearly degenerate one cross more
-    width = max(k + 1, int(max(kp.sum(axis=1).max(initial=0) for kp in keeps)))
+    kept_n = [sum_rows(kp) for kp in keeps]
+    width = max(k + 1, int(max(n.max(initial=0) for n in kept_n)))
     results = []
-    for keep in keeps:
-        out_v, out_c = _compact(cand_v, keep, width)
-        out_inf = _compact(cand_inf, keep, width)[0] if dual else None
+    for keep, n in zip(keeps, kept_n):
+        out_v, out_c = _compact(cand_v, keep, width, n)
+        out_inf = _compact(cand_inf, keep, width, n)[0] if dual else None
         results.append((out_v, out_c, out_inf))
     # a polygon that lies wholly on one side is passed through unchanged (no rounding at all)
     whole_in = in_ok & ~any_out

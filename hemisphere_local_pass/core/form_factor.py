@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .rowops import sum_rows
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["CANCELLATION", "contour_integral", "directions", "edge_noise"]
@@ -101,11 +102,11 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     nrm = np.broadcast_to(normal, (a.shape[0], 3))
     proj = cx * nrm[:, 0:1] + cy * nrm[:, 1:2] + cz * nrm[:, 2:3]
     terms = proj * ratio                                                      # (F, K)
-    total = terms.sum(axis=1)
+    total = sum_rows(terms)
     # Where the edge terms cancel (a small factor from large terms: a wall seen from near its foot, a
     # sliver near the horizon) each term's rounding is amplified by Σ|t| / |Σ t|; redo those rows in
     # extended precision (80-bit on x86; where longdouble is double this changes nothing).
-    cond = np.abs(terms).sum(axis=1)
+    cond = sum_rows(np.abs(terms))
     bad = cond > CANCELLATION * np.abs(total)
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
         total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], None if inf is None else

@@ -96,7 +96,8 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
     """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
     fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
     ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
-    :func:`.visibility.visible_terms`): ``ff`` is then negative for the terms to subtract."""
+    :func:`.visibility.visible_terms`): ``ff`` is then negative for the terms to subtract, and the
+    fragments carry no vertices (``verts`` None), only their ids."""
     reps = scene.dup_rep == np.arange(scene.n_polygons)
     if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
         include = reps[None, :] if include is None else include & reps[None, :]
@@ -110,15 +111,21 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
         skip = skip | pairs.mask
         clear = (pairs, te)
     cand = hemisphere_candidates(scene, points, normals, limit, include, occ, skip)
-    ptr, ids, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
+    ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
     vis = np.flatnonzero(~hidden)
     frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
                       cand.point[vis], cand.poly[vis], cand.side[vis], vis)
     if use_clear:
-        frags, sign = visible_terms(frags, ptr, ids, sv)
+        # signed terms, integrated set by set; the sums need only their ids (verts None)
+        terms = visible_terms(frags, ptr, ids, sv, planes)
+        ff = np.concatenate([sign * np.maximum(t.side * _contour_by_width(t, normals, points), 0.0)
+                             for t, sign in terms] or [np.zeros(0)])
+        frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
+                                        for a in ("counts", "point", "poly", "side", "owner")))
     else:
-        frags, sign = subtract_shadow_volumes(frags, ptr, ids, sv), None
-    ff = frags.side * _contour_by_width(frags, normals, points)
+        frags = subtract_shadow_volumes(frags, ptr, ids, sv, planes)
+        # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
+        ff = np.maximum(frags.side * _contour_by_width(frags, normals, points), 0.0)
     if not reps.all():
         # credit each fragment to the copy that faces the receiver (then the lowest index)
         rep = frags.poly
@@ -126,9 +133,7 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
         use_opp = (frags.side > 0) & (opp >= 0)
         frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
         frags.side = np.where(use_opp, -frags.side, frags.side)
-    # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
-    ff = np.maximum(ff, 0.0)
-    return frags, ff if sign is None else sign * ff, clear
+    return frags, ff, clear
 
 
 def _contour_by_width(frags: Fragments, normals, points) -> np.ndarray:

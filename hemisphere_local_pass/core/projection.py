@@ -22,6 +22,7 @@ import numpy as np
 from .clipping import split_convex
 from .csr import expand
 from .form_factor import edge_noise
+from .rowops import any_rows, nonzero_rows, take_rows
 from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -125,7 +126,7 @@ def _tile_pairs(occ, points, normals, hidden_tiles):
     above = height_t + occ.tile_radii[None] > -PLANE_EPS * (dist_t + occ.tile_radii[None])
     if hidden_tiles is not None:
         above &= ~hidden_tiles
-    tp, tt = np.nonzero(above)
+    tp, tt = nonzero_rows(above)
     b, ci = expand(tt, occ.tile_ptr, occ.tile_members)
     return tp[b], ci
 
@@ -144,7 +145,11 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     """
     cp, ci = _tile_pairs(occluders, points, normals, hidden_tiles)
     if include is not None:
-        keep = np.broadcast_to(include, (len(points), scene.n_polygons))[cp, ci]
+        inc = np.asarray(include)
+        if inc.ndim == 2 and inc.shape[0] == 1:      # one row for every receiver
+            keep = inc[0][ci]
+        else:
+            keep = np.broadcast_to(inc, (len(points), scene.n_polygons)).ravel()[cp * scene.n_polygons + ci]
         cp, ci = cp[keep], ci[keep]
     # horizon culling by bounding sphere first (conservative, cheap), then by the vertices
     rel_ci = scene.poly_centers[ci] - points[cp]                               # (C, 3)
@@ -160,18 +165,21 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     cp, ci, side, scale = cp[keep], ci[keep], side[keep], scale[keep]
     eps = PLANE_EPS * scale
     # one spare slot: clipping a convex polygon by one plane adds at most one vertex
-    verts = scene.poly_vertices_spare[ci] - points[cp, None, :]                 # (C, K+1, 3)
+    verts = take_rows(scene.poly_vertices_spare, ci) - points[cp][:, None, :]  # (C, K+1, 3)
     if limit is not None:
         flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale
                   + scene.poly_noise[ci] + point_noise[cp], limit[cp], verts)
     counts = scene.poly_counts[ci]
-    height = np.matmul(verts, normals[cp][:, :, None])[..., 0]                 # (C, K+1) above the horizon
+    nc = normals[cp]
+    height = (verts[..., 0] * nc[:, 0:1] + verts[..., 1] * nc[:, 1:2]
+              + verts[..., 2] * nc[:, 2:3])                                     # (C, K+1) above the horizon
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
-    above = ((height > eps[:, None]) & valid).any(axis=1)
-    straddle = ((height < -eps[:, None]) & valid).any(axis=1)
+    above = any_rows((height > eps[:, None]) & valid)
+    straddle = any_rows((height < -eps[:, None]) & valid)
     if not above.all():
+        up = np.flatnonzero(above)
         side, cp, ci, verts, counts, height, eps, straddle = (
-            x[above] for x in (side, cp, ci, verts, counts, height, eps, straddle))
+            take_rows(x, up) for x in (side, cp, ci, verts, counts, height, eps, straddle))
     inf = None
     if limit is not None:
         inf = np.broadcast_to(-limit[cp, None, :], verts.shape).copy()
@@ -190,10 +198,10 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
                         + line_tol * np.linalg.norm(b - a, axis=2))
                        & ((a * b).sum(axis=2) < 0))
         (iv, ic, iinf), _ = split_convex(
-            verts[s, :k], counts[s], height[s, :k], eps[s],
+            take_rows(verts, s)[:, :k], counts[s], take_rows(height, s)[:, :k], eps[s],
             inf=None if inf is None else inf[s, :k],
             s_inf=None if inf is None else np.zeros_like(height[s, :k]),  # N . u = 0: u is tangent
-            origin_edges=through,
+            origin_edges=through, outside=False,
         )
         if iv.shape[1] > verts.shape[1]:  # rounding made a nearly degenerate polygon cross twice more
             verts = np.concatenate([verts, np.repeat(verts[:, -1:], iv.shape[1] - verts.shape[1], axis=1)], axis=1)

@@ -28,6 +28,7 @@ from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, receiver_side, snap_to_receiver
+from .rowops import any_rows, max_abs_rows, nonzero_rows, take_rows
 from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -53,8 +54,12 @@ class Fragments:
     owner: np.ndarray
 
     def take(self, sel) -> Fragments:
-        return Fragments(self.verts[sel], None if self.inf is None else self.inf[sel], self.counts[sel],
-                         self.point[sel], self.poly[sel], self.side[sel], self.owner[sel])
+        """The fragments ``sel`` (an integer index or a boolean mask)."""
+        sel = np.asarray(sel)
+        if sel.dtype == bool:
+            sel = np.flatnonzero(sel)
+        return Fragments(take_rows(self.verts, sel), None if self.inf is None else take_rows(self.inf, sel),
+                         self.counts[sel], self.point[sel], self.poly[sel], self.side[sel], self.owner[sel])
 
     def pieces(self, src, verts, counts, inf) -> Fragments:
         """New fragments ``verts (p, K, 3)`` cut from fragments ``src (p,)`` of this set."""
@@ -115,6 +120,9 @@ class ShadowVolumes:
             self.n_face = self.n_base
         if self.occludes is None:
             self.occludes = np.ones(self.n_base, dtype=bool)
+        # the planes as component arrays (Q, J) for gathers, and the unused slots (always inside)
+        self.nx, self.ny, self.nz = (np.ascontiguousarray(self.normal[..., c]) for c in range(3))
+        self.unused = (self.nx == 0) & (self.ny == 0) & (self.nz == 0) & (self.offset < 0)
 
 
 def _cone(rel_c: np.ndarray, radius: np.ndarray):
@@ -287,30 +295,74 @@ def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
 
 
 def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
-    """Filter (body, shadow volume) pairs; returns the kept pair indices and which of them cover the body.
+    """Filter (body, shadow volume) pairs; returns the kept pair indices, which of them cover the body,
+    and ``planes (kept, J)`` bool: the planes of each kept pair's volume that the body may cross.
 
     Tests, cheapest first: bounding cones from P overlap; the body's bounding sphere reaches inside every
     plane of the volume; exactly, the body's vertices are not all outside one plane. A body whose
     vertices are inside (or on) every plane lies wholly in the volume: it is *covered* (hidden).
+    The exact test only looks at the planes the bounding sphere is not strictly inside of, by more
+    than any vertex's on-plane tolerance (see :func:`_sphere_inside`): every vertex is inside the
+    others, and so is every piece later cut from the body, so the clips skip them too.
     """
     cos_angle = np.einsum("ij,ij->i", ax_b[body], ax_o[q])
     cos_sum = np.cos(half_b[body] + np.minimum(half_o[q], np.pi))
     keep = np.flatnonzero((half_b[body] + half_o[q] >= np.pi) | (cos_angle >= cos_sum - 1e-12))
     rel = center_rel[body[keep]]                                                 # (p, 3)
-    dist = np.matmul(sv.normal[q[keep]], rel[:, :, None])[..., 0] - sv.offset[q[keep]]   # (p, J)
-    reach = radius[body[keep]] * (1.0 + 1e-9) + PLANE_EPS * np.abs(rel).max(axis=1)
-    keep = keep[(dist > -reach[:, None]).all(axis=1)]
-    meets = np.zeros(len(keep), dtype=bool)
-    covered = np.zeros(len(keep), dtype=bool)
-    step = max(1, int(2e6 // (verts.shape[1] * sv.normal.shape[1])))
-    for s in range(0, len(keep), step):
-        b, qq = body[keep[s:s + step]], q[keep[s:s + step]]
-        v = verts[b]
-        side = _all_plane_sides(v, None if inf is None else inf[b], counts[b], np.abs(v).max(axis=(1, 2)), sv, qq)[0]
-        outside_one = ~(side > 0).any(axis=2).all(axis=1)                       # side: (b, J, K)
-        meets[s:s + step] = ~outside_one
-        covered[s:s + step] = ~(side < 0).any(axis=(1, 2)) & ~outside_one
-    return keep[meets], covered[meets]
+    qk = q[keep]
+    off = take_rows(sv.offset, qk)                                               # (p, J)
+    dist = (take_rows(sv.nx, qk) * rel[:, 0:1] + take_rows(sv.ny, qk) * rel[:, 1:2]
+            + take_rows(sv.nz, qk) * rel[:, 2:3] - off)                          # (p, J)
+    rad = radius[body[keep]]
+    rmax = np.maximum(np.maximum(np.abs(rel[:, 0]), np.abs(rel[:, 1])), np.abs(rel[:, 2]))
+    reach = rad * (1.0 + 1e-9) + PLANE_EPS * rmax
+    near = ~any_rows(dist <= -reach[:, None])
+    near = np.flatnonzero(near)
+    keep, dist, off, rad, rmax, qk = (take_rows(x, near) for x in (keep, dist, off, rad, rmax, qk))
+    planes = ~(_sphere_inside(dist, off, rad, rmax) | take_rows(sv.unused, qk))  # (p, J)
+    pr, pj = nonzero_rows(planes)                                                # (pair, plane) entries
+    outside = np.zeros(len(keep), dtype=bool)
+    crossed = np.zeros(len(keep), dtype=bool)
+    n_j = sv.normal.shape[1]
+    normal_flat = sv.normal.reshape(-1, 3)
+    step = max(1, int(2e6 // verts.shape[1]))
+    for s in range(0, len(pr), step):
+        r, j = pr[s:s + step], pj[s:s + step]
+        b, qj = body[keep[r]], qk[r] * n_j + j
+        v = take_rows(verts, b)                                                  # (E, K, 3)
+        side = _sides(v, None if inf is None else take_rows(inf, b), counts[b], max_abs_rows(v),
+                      take_rows(normal_flat, qj), sv.offset.ravel()[qj],
+                      None if sv.offset_inf is None else sv.offset_inf.ravel()[qj])[0]
+        outside[r[~any_rows(side > 0)]] = True
+        crossed[r[any_rows(side < 0)]] = True
+    meets = ~outside
+    return keep[meets], ~crossed[meets], planes[meets]
+
+
+def _sphere_inside(dist, offset, radius, rmax):
+    """``(p, J)`` planes (``offset (p, J)``) that bodies' bounding spheres (``radius (p,)``, centre at
+    ``dist (p, J)`` from the planes, ``rmax (p,)`` = max |centre coordinate| from P) lie strictly inside
+    of, by more than the on-plane tolerance ``PLANE_EPS (max |x| + |offset|)`` of any vertex x in the
+    sphere (max |x| <= rmax + radius; the margin is doubled for rounding and for vertices snapped onto P
+    in one-sided limits)."""
+    margin = radius * (1.0 + 1e-9) + PLANE_EPS * 4.0 * (rmax + radius)
+    return dist > margin[:, None] + PLANE_EPS * 2.0 * np.abs(offset)
+
+
+def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
+    """Sides (E, K) int8 of vertices ``verts (E, K, 3)`` w.r.t. one plane each (``normal (E, 3)``,
+    ``offset (E,)``; ``offset_inf`` its first-order part or None), padding slots 0; with the signed
+    distances (E, K), their first-order parts or None, and the tolerances ``PLANE_EPS (scale + |offset|)``."""
+    s_re = (verts[..., 0] * normal[:, 0:1] + verts[..., 1] * normal[:, 1:2] + verts[..., 2] * normal[:, 2:3]
+            - offset[:, None])
+    s_inf = None
+    if inf is not None:
+        s_inf = (inf[..., 0] * normal[:, 0:1] + inf[..., 1] * normal[:, 1:2] + inf[..., 2] * normal[:, 2:3]
+                 - offset_inf[:, None])
+    eps = PLANE_EPS * (scale + np.abs(offset))
+    side = classify(s_re, eps, s_inf)
+    side *= np.arange(verts.shape[1])[None, :] < counts[:, None]
+    return side, s_re, s_inf, eps
 
 
 @dataclass
@@ -374,8 +426,8 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     beyond[np.arange(n_k), k_occ] = False
     k_idx, o_idx = np.nonzero(beyond)
     kq = q_tab[k_idx, o_idx]
-    kept, cov = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.vol_radii[sv.occluder], sv,
-                            ax_o, half_o, ax_o, half_o)
+    kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.vol_radii[sv.occluder], sv,
+                               ax_o, half_o, ax_o, half_o)
     k_idx, kq = k_idx[kept], kq[kept]
     cluster_covered = np.zeros(n_q, dtype=bool)
     cluster_covered[k_idx[cov]] = True
@@ -409,8 +461,8 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
         ax_t, half_t, _ = _cone(t_rel, occ.tile_radii[tile])
         tb, tq = expand(tk, k_ptr, kq)
         t_inf = None if sv.inf is None else np.broadcast_to(sv.inf[tk][:, :1], corners.shape).copy()
-        kept, cov = _test_pairs(tb, tq, corners, t_inf, np.full(len(tp), 8), t_rel, occ.tile_radii[tile], sv,
-                                ax_t, half_t, ax_o, half_o)
+        kept, cov, _ = _test_pairs(tb, tq, corners, t_inf, np.full(len(tp), 8), t_rel, occ.tile_radii[tile], sv,
+                                   ax_t, half_t, ax_o, half_o)
         tb, tq = tb[kept], tq[kept]
         t_cov = np.zeros(len(tp), dtype=bool)
         t_cov[tb[cov]] = True
@@ -436,12 +488,15 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
     volume (see :func:`coverage`); each test (see :func:`_test_pairs`) needs the body to have a vertex
     strictly beyond the occluder's plane, on the side away from P (precomputed per scene, per side).
 
-    Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances per candidate) and ``hidden (C,)``:
-    candidates wholly inside one shadow volume, which need no further work.
+    Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances per candidate), ``planes
+    (len(ids), J)`` bool (the planes of each volume the candidate may cross; the others contain it, see
+    :func:`_test_pairs`) and ``hidden (C,)``: candidates wholly inside one shadow volume, which need no
+    further work.
     """
     c_n, n_q = len(cand.point), sv.n_base
     if c_n == 0 or n_q == 0:
-        return np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(c_n, dtype=bool)
+        return (np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64),
+                np.zeros((0, sv.normal.shape[1]), dtype=bool), np.zeros(c_n, dtype=bool))
     k_of = table[cand.point, occ.members[cand.poly]]                            # (C,) cluster instance
     ti = cov.t_tab[cand.point, occ.tile_of[cand.poly]]                          # (C,) tile instance or -1
     hidden = np.zeros(c_n, dtype=bool)
@@ -481,65 +536,47 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
         q = np.concatenate([q, cq[wins] + sv.n_base])                          # the cone-only copy
     c_rel = scene.poly_centers[cand.poly] - points[cand.point]
     ax_c, half_c, _ = _cone(c_rel, scene.poly_radii[cand.poly])
-    kept, covd = _test_pairs(body, q, cand.verts, cand.inf, cand.counts, c_rel, scene.poly_radii[cand.poly], sv,
-                             ax_c, half_c, cov.ax_o, cov.half_o)
+    kept, covd, planes = _test_pairs(body, q, cand.verts, cand.inf, cand.counts, c_rel, scene.poly_radii[cand.poly],
+                                     sv, ax_c, half_c, cov.ax_o, cov.half_o)
     body, q = body[kept], q[kept]
     hidden[body[covd]] = True
     keep = ~hidden[body]
-    body, q = body[keep], q[keep]
+    body, q, planes = body[keep], q[keep], planes[keep]
     order = np.lexsort((sv.near[q], body))
-    ids, body = q[order], body[order]
+    ids, body, planes = q[order], body[order], planes[order]
     ptr = np.zeros(c_n + 1, dtype=np.int64)
     np.add.at(ptr, body + 1, 1)
-    return np.cumsum(ptr), ids, hidden
-
-
-def _all_plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray):
-    """Sides (W, J, K) of fragment vertices w.r.t. every plane of volumes ``q`` (W,), with the signed
-    distances (W, J, K), their first-order parts or None, and the tolerances (W, J)."""
-    nrm = sv.normal[q]                                                           # (W, J, 3)
-    off = sv.offset[q]                                                           # (W, J)
-    s_re = np.matmul(nrm, verts.transpose(0, 2, 1)) - off[:, :, None]                 # (W, J, K)
-    eps = PLANE_EPS * (scale[:, None] + np.abs(off))
-    side = (s_re > eps[:, :, None]).astype(np.int8) - (s_re < -eps[:, :, None])
-    s_inf = None
-    if inf is not None:
-        s_inf = np.matmul(nrm, inf.transpose(0, 2, 1)) - sv.offset_inf[q][:, :, None]
-        on = side == 0
-        side[on] = (s_inf[on] > PLANE_EPS).astype(np.int8) - (s_inf[on] < -PLANE_EPS)
-    side *= (np.arange(verts.shape[1])[None, :] < counts[:, None])[:, None, :]     # padding slots: 0
-    return side, s_re, s_inf, eps
+    return np.cumsum(ptr), ids, planes, hidden
 
 
 def _plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray, j):
-    """Sides (W, K) of fragment vertices w.r.t. plane ``j`` of volumes ``q`` (W,); invalid slots 0.
-
-    ``scale (W,)`` is the fragments' length scale (max |x|) for the on-plane tolerance.
-    """
-    nrm = sv.normal[q, j]
-    off = sv.offset[q, j]
-    s_re = np.matmul(verts, nrm[:, :, None])[..., 0] - off[:, None]
-    s_inf = None
-    if inf is not None:
-        s_inf = np.matmul(inf, nrm[:, :, None])[..., 0] - sv.offset_inf[q, j][:, None]
-    eps = PLANE_EPS * (scale + np.abs(off))
-    side = classify(s_re, eps, s_inf)
-    side[np.arange(verts.shape[1])[None, :] >= counts[:, None]] = 0
-    return side, s_re, s_inf, eps
+    """Sides (W, K) of fragment vertices w.r.t. plane ``j`` of volumes ``q`` (W,); invalid slots 0
+    (see :func:`_sides`). ``scale (W,)`` is the fragments' length scale (max |x|) for the tolerance."""
+    return _sides(verts, inf, counts, scale, sv.normal[:, j][q], sv.offset[:, j][q],
+                  None if inf is None else sv.offset_inf[:, j][q])
 
 
-def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes) -> Fragments:
+def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes,
+                            planes: np.ndarray | None = None) -> Fragments:
     """Remove from every fragment the parts inside its occluders' shadow volumes.
 
     Args:
         frags: fragments (``owner``: their candidates); ptr, ids: the candidates' occluder instances
-            (CSR, nearest first); sv: the shadow volumes.
+            (CSR, nearest first); sv: the shadow volumes; planes: ``(len(ids), J)`` bool, the planes of
+            each volume that may cut the candidate (see :func:`occluder_pairs`), or None for all.
     Returns:
         the visible fragments.
     """
+    return Fragments.concat(_subtract(frags, ptr, ids, sv, planes))
+
+
+def _subtract(frags: Fragments, ptr, ids, sv: ShadowVolumes, planes) -> list[Fragments]:
+    """:func:`subtract_shadow_volumes` as a list of fragment sets (not padded to one width)."""
     dual = frags.inf is not None
     n_occ = np.diff(ptr)
     j_planes = sv.normal.shape[1]
+    if planes is None:
+        planes = np.ones((len(ids), j_planes), dtype=bool)
     done: list[tuple] = []
     work = frags
     r = 0
@@ -551,48 +588,40 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
             if not len(work.owner):
                 break
         n_w = len(work.owner)
-        q_of = ids[ptr[work.owner] + r]                                           # (W,)
+        entry = ptr[work.owner] + r
+        q_of = ids[entry]                                                        # (W,)
+        use = planes[entry]                                                      # (W, J)
         width = work.verts.shape[1] + j_planes
         cur_v = _fit(work.verts, work.counts, width)
         cur_i = _fit(work.inf, work.counts, width) if dual else None
         cur_c = work.counts.copy()
-        scale = np.abs(work.verts).max(axis=(1, 2))
+        scale = max_abs_rows(work.verts)
         item = np.arange(n_w)
         pieces = []
-        # sides of the unchanged fragments for every plane at once, on their own width k0 only: a row
-        # not clipped yet has at most k0 vertices
-        k0 = work.verts.shape[1]
-        side_all, sre_all, sinf_all, eps_all = _all_plane_sides(work.verts, work.inf, cur_c, scale, sv, q_of)
-        cut_before = np.zeros(n_w, dtype=bool)
         for j in range(j_planes):
-            side, s_re, eps = side_all[item, j], sre_all[item, j], eps_all[item, j]   # fancy-indexed copies
-            s_inf = sinf_all[item, j] if dual else None
-            redo = np.flatnonzero(cut_before[item])
-            if len(redo):  # these rows were clipped by an earlier plane: their vertices changed
-                kr = max(k0, int(cur_c[redo].max()))
-                sd, sr, si, ep = _plane_sides(cur_v[redo, :kr], None if not dual else cur_i[redo, :kr],
-                                              cur_c[redo], scale[item[redo]], sv, q_of[item[redo]], j)
-                if kr > k0:
-                    side, s_re = _zero_pad(side, kr), _zero_pad(s_re, kr)
-                    s_inf = _zero_pad(s_inf, kr) if dual else None
-                side[redo], s_re[redo] = sd, sr
-                if dual:
-                    s_inf[redo] = si
-            has_in = (side > 0).any(axis=1)
-            has_out = (side < 0).any(axis=1)
-            # wholly outside this plane: the fragment does not meet the volume and stays whole;
-            # wholly inside (or on) it: carry on unchanged to the next plane
-            cut = np.flatnonzero(has_in & has_out)
-            if len(cut):
-                k = int(cur_c[cut].max())
-                (iv, ic, ii), (ov, oc, oi) = split_convex(
-                    cur_v[cut, :k], cur_c[cut], s_re[cut, :k], eps[cut],
-                    inf=cur_i[cut, :k] if dual else None, s_inf=s_inf[cut, :k] if dual else None)
-                pieces.append((item[cut], ov, oc, oi))
-                cur_v, cur_i = _store_pieces(cur_v, cur_i, cur_c, cut, iv, ii, ic)
-                cut_before[item[cut]] = True
-            item, cur_v, cur_c = item[has_in], cur_v[has_in], cur_c[has_in]
-            cur_i = cur_i[has_in] if dual else None
+            rows = np.flatnonzero(use[item, j])
+            # a plane that contains the candidate (not in ``use``) contains every piece of it: carry on
+            if len(rows):
+                k = int(cur_c[rows].max())
+                side, s_re, s_inf, eps = _plane_sides(cur_v[rows, :k], cur_i[rows, :k] if dual else None,
+                                                      cur_c[rows], scale[item[rows]], sv, q_of[item[rows]], j)
+                has_in = any_rows(side > 0)
+                # wholly outside this plane: the fragment does not meet the volume and stays whole;
+                # wholly inside (or on) it: carry on unchanged to the next plane
+                cut = has_in & any_rows(side < 0)
+                if cut.any():
+                    rc = rows[cut]
+                    k = int(cur_c[rc].max())
+                    (iv, ic, ii), (ov, oc, oi) = split_convex(
+                        cur_v[rc, :k], cur_c[rc], s_re[cut, :k], eps[cut],
+                        inf=cur_i[rc, :k] if dual else None, s_inf=s_inf[cut, :k] if dual else None)
+                    pieces.append((item[rc], ov, oc, oi))
+                    cur_v, cur_i = _store_pieces(cur_v, cur_i, cur_c, rc, iv, ii, ic)
+                if not has_in.all():
+                    stay = np.ones(len(item), dtype=bool)
+                    stay[rows[~has_in]] = False
+                    item, cur_v, cur_c = item[stay], cur_v[stay], cur_c[stay]
+                    cur_i = cur_i[stay] if dual else None
             if len(item) == 0:
                 break
         hidden = np.zeros(n_w, dtype=bool)
@@ -606,7 +635,7 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
             work = Fragments.concat(parts)
         r += 1
     done.append(work)
-    return Fragments.concat(done)
+    return done
 
 
 def _store_pieces(v, inf, c, rows, iv, ii, ic):
@@ -624,12 +653,6 @@ def _store_pieces(v, inf, c, rows, iv, ii, ic):
         inf[rows, w:] = ii[:, -1:]
     c[rows] = ic
     return v, inf
-
-
-def _zero_pad(a: np.ndarray, width: int) -> np.ndarray:
-    """``a (..., K)`` widened to ``width`` along its last axis with zeros."""
-    pad = [(0, 0)] * (a.ndim - 1) + [(0, width - a.shape[-1])]
-    return np.pad(a, pad)
 
 
 def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
@@ -653,7 +676,7 @@ def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
 IE_MAX_VOLUMES = 1
 
 
-def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes):
+def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes, planes: np.ndarray):
     """The visible part of every fragment as a signed sum of convex pieces (for sums over fragments).
 
     By inclusion–exclusion ``A \\ (V_1 ∪ … ∪ V_k) = A − Σ A∩V_i + Σ A∩V_i∩V_j − …`` as signed measures:
@@ -663,7 +686,10 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
     A term's clips are the same plane splits as the subtraction's, so ``A`` minus its inside pieces is
     the subtraction's outside pieces to rounding.
 
-    Returns ``(terms, sign)``: fragments and ``sign (F,)`` float64 (+1 or -1) to weight their integrals.
+    ``planes (len(ids), J)``: the planes of each volume that may cut the candidate (see
+    :func:`occluder_pairs`). Returns a list of ``(terms, sign)``: fragment sets (each padded to its own
+    width, so that eq. 4 runs on each without padding them all to the widest) and the sign (+1 or -1)
+    that weights their integrals.
     """
     n_occ = np.diff(ptr)[frags.owner]
     many = n_occ > IE_MAX_VOLUMES
@@ -671,12 +697,9 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
         # one-sided limits: fragments touching P are integrated from first-order directions, and a
         # difference of two such integrals is not as accurate as the integrals of the pieces
         many[:] = True
-    parts = [frags.take(~many)]
-    signs = [np.ones(int((~many).sum()))]
+    parts = [(frags.take(~many), 1.0)]
     if many.any():
-        sub = subtract_shadow_volumes(frags.take(many), ptr, ids, sv)
-        parts.append(sub)
-        signs.append(np.ones(len(sub.owner)))
+        parts += [(sub, 1.0) for sub in _subtract(frags.take(many), ptr, ids, sv, planes)]
     few = np.flatnonzero((n_occ > 0) & ~many)
     # level 1: every (fragment, volume) pair; then each term grows by a volume after its last one
     rows = np.repeat(few, n_occ[few])
@@ -684,10 +707,10 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
     cur = frags.take(rows)
     sign = -1.0
     while len(rows):
-        cur, kept = _clip_into_volumes(cur, ids[ptr[cur.owner] + pos], sv)
+        entry = ptr[cur.owner] + pos
+        cur, kept = _clip_into_volumes(cur, ids[entry], planes[entry], sv)
         rows, pos = rows[kept], pos[kept]
-        parts.append(cur)
-        signs.append(np.full(len(kept), sign))
+        parts.append((cur, sign))
         # extend each term by every later volume of its fragment
         more = n_occ[rows] - 1 - pos
         ext = np.repeat(np.arange(len(rows)), more)
@@ -695,36 +718,39 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
         rows, pos = rows[ext], pos[ext] + step
         cur = cur.take(ext)
         sign = -sign
-    return Fragments.concat(parts), np.concatenate(signs)
+    return [(f, sg) for f, sg in parts if len(f.owner)]
 
 
-def _clip_into_volumes(frags: Fragments, q: np.ndarray, sv: ShadowVolumes):
-    """Clip every fragment to the inside of its volume ``q (F,)``: ``(clipped, kept)`` where ``kept``
-    indexes the fragments with a non-empty inside (a vertex strictly inside every plane)."""
+def _clip_into_volumes(frags: Fragments, q: np.ndarray, use: np.ndarray, sv: ShadowVolumes):
+    """Clip every fragment to the inside of its volume ``q (F,)``, by the planes ``use (F, J)`` (the
+    others contain the fragment): ``(clipped, kept)`` where ``kept`` indexes the fragments with a
+    non-empty inside (a vertex strictly inside every plane)."""
     dual = frags.inf is not None
     kept = np.arange(len(q))
     v, inf, c = frags.verts, frags.inf, frags.counts
-    scale = np.abs(v).max(axis=(1, 2))
+    scale = max_abs_rows(v)
     for j in range(sv.normal.shape[1]):
         if not len(kept):
             break
-        real = (sv.normal[q, j] != 0).any(axis=1)             # unused plane slots are always inside
-        rr = np.flatnonzero(real)
+        rr = np.flatnonzero(use[:, j])
         if not len(rr):
             continue
-        side, s_re, s_inf, eps = _plane_sides(v[rr], None if not dual else inf[rr], c[rr], scale[rr], sv, q[rr], j)
-        has_in = (side > 0).any(axis=1)
-        cut = has_in & (side < 0).any(axis=1)
+        side, s_re, s_inf, eps = _plane_sides(take_rows(v, rr), None if not dual else take_rows(inf, rr), c[rr],
+                                              scale[rr], sv, q[rr], j)
+        has_in = any_rows(side > 0)
+        cut = has_in & any_rows(side < 0)
         if cut.any():
-            rc = rr[cut]
+            ci = np.flatnonzero(cut)
+            rc = rr[ci]
             k = int(c[rc].max())
-            (iv, ic, ii), _ = split_convex(v[rc, :k], c[rc], s_re[cut, :k], eps[cut],
-                                           inf=inf[rc, :k] if dual else None,
-                                           s_inf=s_inf[cut, :k] if dual else None, outside=False)
+            (iv, ic, ii), _ = split_convex(take_rows(v, rc)[:, :k], c[rc], take_rows(s_re, ci)[:, :k], eps[ci],
+                                           inf=take_rows(inf, rc)[:, :k] if dual else None,
+                                           s_inf=take_rows(s_inf, ci)[:, :k] if dual else None, outside=False)
             v, inf = _store_pieces(v, inf, c, rc, iv, ii, ic)  # (the caller's private copies)
-        keep = np.ones(len(q), dtype=bool)
-        keep[rr[~has_in]] = False
-        if not keep.all():
-            kept, q, v, c, scale = kept[keep], q[keep], v[keep], c[keep], scale[keep]
-            inf = inf[keep] if dual else None
+        if not has_in.all():
+            keep = np.ones(len(q), dtype=bool)
+            keep[rr[~has_in]] = False
+            keep = np.flatnonzero(keep)
+            kept, q, use, v, c, scale = (take_rows(x, keep) for x in (kept, q, use, v, c, scale))
+            inf = take_rows(inf, keep) if dual else None
     return Fragments(v, inf, c, frags.point[kept], frags.poly[kept], frags.side[kept], frags.owner[kept]), kept
