@@ -22,7 +22,7 @@ import numpy as np
 from .clipping import split_convex
 from .csr import expand
 from .form_factor import edge_noise
-from .rowops import any_rows, nonzero_rows, take_rows
+from .rowops import any_rows, nonzero_rows, sides, take_rows
 from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -33,13 +33,13 @@ def _side(d, tol, d_inf, tilt=0.0):
     """+1 / -1 / 0 (int8) from plane distances ``d`` with tolerance ``tol``; where ``d`` is within it,
     from the first-order distances ``d_inf()`` (a callable: computed only if needed; ``-n . u``, known to
     the plane's angular uncertainty ``tilt``) or 0."""
-    side = np.where(d > tol, 1, np.where(d < -tol, -1, 0)).astype(np.int8)
+    side = sides(d, tol)
     if d_inf is not None:
         on = side == 0
         if on.any():
             di = d_inf()[on]
             tol_inf = PLANE_EPS + np.broadcast_to(tilt, side.shape)[on]
-            side[on] = np.where(di > tol_inf, 1, np.where(di < -tol_inf, -1, 0))
+            side[on] = sides(di, tol_inf)
     return side
 
 
@@ -53,7 +53,8 @@ def receiver_side(normals, first_vertex_rel, scale, limit, tilt=0.0, noise=0.0):
         tilt, noise: the planes' angular uncertainty (n,) and the absolute coordinate noise of planes
             and receivers (broadcast to (m, n)), see :func:`.scene.plane_uncertainty`.
     """
-    d = (first_vertex_rel * normals[None]).sum(axis=2)                 # n . (v0 - P)
+    r = first_vertex_rel
+    d = r[..., 0] * normals[:, 0] + r[..., 1] * normals[:, 1] + r[..., 2] * normals[:, 2]   # n . (v0 - P)
     # at P + εu the plane distance is n.(v0 - P) - ε n.u
     return _side(d, (PLANE_EPS + tilt) * scale + noise, None if limit is None else (lambda: -(limit @ normals.T)),
                  tilt)

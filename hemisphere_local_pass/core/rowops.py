@@ -41,7 +41,7 @@ def sum_rows(a: np.ndarray) -> np.ndarray:
 def max_abs_rows(v: np.ndarray) -> np.ndarray:
     """``np.abs(v).max(axis=(1, 2))`` for ``v (F, K, 3)``: the rows' largest absolute coordinate."""
     f = v.shape[0]
-    flat = v.reshape(f, -1)
+    flat = v.reshape(f, v.shape[1] * v.shape[2])
     if flat.shape[1] == 0:
         return np.zeros(f)
     out = np.abs(flat[:, 0])

@@ -127,7 +127,7 @@ class ShadowVolumes:
 
 def _cone(rel_c: np.ndarray, radius: np.ndarray):
     """Bounding cone (axis (.., 3), half-angle (..,)) of spheres at ``rel_c`` with ``radius`` seen from P."""
-    dist = np.linalg.norm(rel_c, axis=-1)
+    dist = _norm(rel_c)
     axis = rel_c / np.where(dist > 0, dist, 1.0)[..., None]
     ratio = np.where(dist > radius, radius / np.where(dist > 0, dist, 1.0), 1.0)
     half = np.where(dist > radius, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
@@ -151,13 +151,15 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     height_c = np.matmul(rel_c, normals[:, :, None])[..., 0]
     active = (side != 0) & (height_c + occ.radii[None] > PLANE_EPS * scale)
     qp, qo = np.nonzero(active)
-    x = occ.vertices[qo] - points[qp, None]                                     # (Q, Ko, 3)
+    x = take_rows(occ.vertices, qo) - points[qp][:, None]                       # (Q, Ko, 3)
     counts = occ.counts[qo]
     k = x.shape[1]
+    xs = max_abs_rows(x)
+    nq = normals[qp]
+    height = x[..., 0] * nq[:, 0:1] + x[..., 1] * nq[:, 1:2] + x[..., 2] * nq[:, 2:3]
+    up = np.flatnonzero(any_rows(height > PLANE_EPS * xs[:, None]))            # (padding repeats a vertex)
+    qp, qo, x, counts, xs = (take_rows(a, up) for a in (qp, qo, x, counts, xs))
     valid = np.arange(k)[None] < counts[:, None]
-    xs = np.abs(x).max(axis=(1, 2))
-    up = ((np.matmul(x, normals[qp][:, :, None])[..., 0] > PLANE_EPS * xs[:, None]) & valid).any(axis=1)
-    qp, qo, x, counts, valid, xs = qp[up], qo[up], x[up], counts[up], valid[up], xs[up]
     if limit is not None:
         # P in the occluder's plane within its uncertainty (the side came from the limit): put the
         # vertices exactly in the plane through P, as the candidates are (see hemisphere_candidates)
@@ -181,9 +183,9 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     # planes 1..k: through P and each edge, inside = inside the cone over the occluder
     xn = np.roll(x, -1, axis=1)
     xn = np.where((np.arange(k)[None] + 1 < counts[:, None])[..., None], xn, x[:, :1])  # close the loop
-    c = np.cross(x, xn)                                                         # (Q, Ko, 3)
-    cn = np.linalg.norm(c, axis=2)
-    lens = np.linalg.norm(x, axis=2) * np.linalg.norm(xn, axis=2)
+    c = _cross(x, xn)                                                           # (Q, Ko, 3)
+    cn = _norm(c)
+    lens = _norm(x) * _norm(xn)
     if limit is not None:
         # an edge whose line passes within the coordinate noise of P goes through P: its plane through
         # P is then only known to rounding, and the limit decides (the same test as the contour integral's)
@@ -232,6 +234,20 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     if len(occ.coplanar_occ):
         sv = _with_cone_only(sv)
     return sv, table
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross(a, b)`` over the last axis (3), component by component (np.cross moves axes)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(a, axis=-1)`` for a last axis of 3."""
+    return np.sqrt(a[..., 0] * a[..., 0] + a[..., 1] * a[..., 1] + a[..., 2] * a[..., 2])
 
 
 def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, normals, limit) -> ShadowVolumes:
@@ -330,9 +346,15 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
         r, j = pr[s:s + step], pj[s:s + step]
         b, qj = body[keep[r]], qk[r] * n_j + j
         v = take_rows(verts, b)                                                  # (E, K, 3)
-        side = _sides(v, None if inf is None else take_rows(inf, b), counts[b], max_abs_rows(v),
-                      take_rows(normal_flat, qj), sv.offset.ravel()[qj],
-                      None if sv.offset_inf is None else sv.offset_inf.ravel()[qj])[0]
+        nrm, off = take_rows(normal_flat, qj), sv.offset.ravel()[qj]
+        if inf is None:
+            # padding slots repeat the last vertex, so they change neither test: no classification
+            s_re = v[..., 0] * nrm[:, 0:1] + v[..., 1] * nrm[:, 1:2] + v[..., 2] * nrm[:, 2:3] - off[:, None]
+            eps = (PLANE_EPS * (max_abs_rows(v) + np.abs(off)))[:, None]
+            outside[r[~any_rows(s_re > eps)]] = True
+            crossed[r[any_rows(s_re < -eps)]] = True
+            continue
+        side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
         outside[r[~any_rows(side > 0)]] = True
         crossed[r[any_rows(side < 0)]] = True
     meets = ~outside
@@ -676,7 +698,8 @@ def _fit(v: np.ndarray, c: np.ndarray, width: int) -> np.ndarray:
 IE_MAX_VOLUMES = 1
 
 
-def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes, planes: np.ndarray):
+def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes, planes: np.ndarray,
+                  use: np.ndarray | None = None):
     """The visible part of every fragment as a signed sum of convex pieces (for sums over fragments).
 
     By inclusion–exclusion ``A \\ (V_1 ∪ … ∪ V_k) = A − Σ A∩V_i + Σ A∩V_i∩V_j − …`` as signed measures:
@@ -687,7 +710,8 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
     the subtraction's outside pieces to rounding.
 
     ``planes (len(ids), J)``: the planes of each volume that may cut the candidate (see
-    :func:`occluder_pairs`). Returns a list of ``(terms, sign)``: fragment sets (each padded to its own
+    :func:`occluder_pairs`). ``use (F,)`` bool: the fragments to take (default all; gathered once per
+    set below, so the caller need not copy). Returns a list of ``(terms, sign)``: fragment sets (each padded to its own
     width, so that eq. 4 runs on each without padding them all to the widest) and the sign (+1 or -1)
     that weights their integrals.
     """
@@ -697,10 +721,12 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
         # one-sided limits: fragments touching P are integrated from first-order directions, and a
         # difference of two such integrals is not as accurate as the integrals of the pieces
         many[:] = True
-    parts = [(frags.take(~many), 1.0)]
-    if many.any():
-        parts += [(sub, 1.0) for sub in _subtract(frags.take(many), ptr, ids, sv, planes)]
-    few = np.flatnonzero((n_occ > 0) & ~many)
+    if use is None:
+        use = np.ones(len(n_occ), dtype=bool)
+    parts = [(frags.take(use & ~many), 1.0)]
+    if (use & many).any():
+        parts += [(sub, 1.0) for sub in _subtract(frags.take(use & many), ptr, ids, sv, planes)]
+    few = np.flatnonzero(use & (n_occ > 0) & ~many)
     # level 1: every (fragment, volume) pair; then each term grows by a volume after its last one
     rows = np.repeat(few, n_occ[few])
     pos = np.arange(len(rows)) - np.repeat(np.cumsum(n_occ[few]) - n_occ[few], n_occ[few])
