@@ -153,7 +153,8 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
             keep = np.broadcast_to(inc, (len(points), scene.n_polygons)).ravel()[cp * scene.n_polygons + ci]
         cp, ci = cp[keep], ci[keep]
     # horizon culling by bounding sphere first (conservative, cheap), then by the vertices
-    rel_ci = scene.poly_centers[ci] - points[cp]                               # (C, 3)
+    rel_ci = take_rows(scene.poly_centers, ci)
+    rel_ci -= take_rows(points, cp)                                             # (C, 3)
     height_c = np.einsum("ij,ij->i", rel_ci, normals[cp])
     scale = np.sqrt(np.einsum("ij,ij->i", rel_ci, rel_ci)) + scene.poly_radii[ci]
     mask = height_c + scene.poly_radii[ci] > PLANE_EPS * scale
@@ -166,7 +167,8 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     cp, ci, side, scale = cp[keep], ci[keep], side[keep], scale[keep]
     eps = PLANE_EPS * scale
     # one spare slot: clipping a convex polygon by one plane adds at most one vertex
-    verts = take_rows(scene.poly_vertices_spare, ci) - points[cp][:, None, :]  # (C, K+1, 3)
+    verts = take_rows(scene.poly_vertices_spare, ci)                            # (C, K+1, 3)
+    verts -= take_rows(points, cp)[:, None, :]
     if limit is not None:
         flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale
                   + scene.poly_noise[ci] + point_noise[cp], limit[cp], verts)

@@ -28,7 +28,7 @@ from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, receiver_side, snap_to_receiver
-from .rowops import any_rows, max_abs_rows, nonzero_rows, take_rows
+from .rowops import any_rows, max_abs_rows, nonzero_rows, sum_rows, take_rows
 from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -312,7 +312,8 @@ def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
 
 def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
     """Filter (body, shadow volume) pairs; returns the kept pair indices, which of them cover the body,
-    and ``planes (kept, J)`` bool: the planes of each kept pair's volume that the body may cross.
+    and ``planes (kept, J)`` int8: per plane of each kept pair's volume, 0 where the body cannot cross
+    it, 2 where the body's vertices lie on both sides of it (it cuts the body), 1 otherwise.
 
     Tests, cheapest first: bounding cones from P overlap; the body's bounding sphere reaches inside every
     plane of the volume; exactly, the body's vertices are not all outside one plane. A body whose
@@ -339,6 +340,7 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     pr, pj = nonzero_rows(planes)                                                # (pair, plane) entries
     outside = np.zeros(len(keep), dtype=bool)
     crossed = np.zeros(len(keep), dtype=bool)
+    planes = planes.astype(np.int8)
     n_j = sv.normal.shape[1]
     normal_flat = sv.normal.reshape(-1, 3)
     step = max(1, int(2e6 // verts.shape[1]))
@@ -351,12 +353,13 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
             # padding slots repeat the last vertex, so they change neither test: no classification
             s_re = v[..., 0] * nrm[:, 0:1] + v[..., 1] * nrm[:, 1:2] + v[..., 2] * nrm[:, 2:3] - off[:, None]
             eps = (PLANE_EPS * (max_abs_rows(v) + np.abs(off)))[:, None]
-            outside[r[~any_rows(s_re > eps)]] = True
-            crossed[r[any_rows(s_re < -eps)]] = True
-            continue
-        side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
-        outside[r[~any_rows(side > 0)]] = True
-        crossed[r[any_rows(side < 0)]] = True
+            has_in, has_out = any_rows(s_re > eps), any_rows(s_re < -eps)
+        else:
+            side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
+            has_in, has_out = any_rows(side > 0), any_rows(side < 0)
+        outside[r[~has_in]] = True
+        crossed[r[has_out]] = True
+        planes.ravel()[(r * n_j + j)[has_in & has_out]] = 2
     meets = ~outside
     return keep[meets], ~crossed[meets], planes[meets]
 
@@ -723,10 +726,29 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
         many[:] = True
     if use is None:
         use = np.ones(len(n_occ), dtype=bool)
-    parts = [(frags.take(use & ~many), 1.0)]
+    chain = use & (n_occ > 0) & ~many
+    parts = []
+    # one volume, one of its planes cutting A: A minus A ∩ V is the piece outside that plane
+    one = np.flatnonzero(chain & (n_occ == 1))
+    if len(one):
+        entry = ptr[frags.owner[one]]
+        cuts = take_rows(planes, entry) == 2                                   # (o, J)
+        single = sum_rows(cuts) == 1
+        one, entry, cuts = one[single], entry[single], cuts[single]
+        if len(one):
+            a = frags.take(one)
+            pieces, whole, route = _outside_of_one_plane(a, ids[entry], _first_true(cuts), take_rows(planes, entry), sv)
+            parts.append((pieces, 1.0))
+            chain[one] = False
+            chain[one[route]] = True       # a later plane cuts the inside piece after all: the general way
+            use = use.copy()
+            use[one] = False
+            use[one[whole]] = True         # the inside piece is empty: A is visible whole
+            use[one[route]] = True
+    parts.append((frags.take(use & ~many), 1.0))
     if (use & many).any():
         parts += [(sub, 1.0) for sub in _subtract(frags.take(use & many), ptr, ids, sv, planes)]
-    few = np.flatnonzero(use & (n_occ > 0) & ~many)
+    few = np.flatnonzero(chain)
     # level 1: every (fragment, volume) pair; then each term grows by a volume after its last one
     rows = np.repeat(few, n_occ[few])
     pos = np.arange(len(rows)) - np.repeat(np.cumsum(n_occ[few]) - n_occ[few], n_occ[few])
@@ -745,6 +767,48 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
         cur = cur.take(ext)
         sign = -sign
     return [(f, sg) for f, sg in parts if len(f.owner)]
+
+
+def _first_true(b: np.ndarray) -> np.ndarray:
+    """Index ``(F,)`` of the first True of every row of ``b (F, J)`` (every row has one)."""
+    out = np.full(b.shape[0], b.shape[1] - 1, dtype=np.int64)
+    for j in range(b.shape[1] - 2, -1, -1):
+        out[b[:, j]] = j
+    return out
+
+
+def _outside_of_one_plane(frags: Fragments, q: np.ndarray, cut: np.ndarray, use: np.ndarray, sv: ShadowVolumes):
+    """Visible parts of fragments that one plane ``cut (F,)`` of their only volume ``q (F,)`` cuts.
+
+    The other planes ``use (F, J)`` (codes as :func:`occluder_pairs`) contain the fragment A, so
+    ``A ∩ V`` is A's piece inside the cut plane, and the visible part ``A − A ∩ V`` is the piece
+    outside it: one convex piece, one integral instead of two. As the clip chain of
+    :func:`_clip_into_volumes` would, the inside piece is then tested against the later planes:
+    where it has no vertex strictly inside one of them ``A ∩ V`` is empty and A is visible whole;
+    where one of them cuts it (a rounding-level case) the fragment takes the general way.
+
+    Returns ``(pieces, whole, route)``: the outside pieces of the other fragments, and the indices of
+    the fragments visible whole and of those to route.
+    """
+    n_j = sv.normal.shape[1]
+    v, c = frags.verts, frags.counts
+    scale = max_abs_rows(v)
+    qj = q * n_j + cut
+    _, s_re, _, eps = _sides(v, None, c, scale, take_rows(sv.normal.reshape(-1, 3), qj), sv.offset.ravel()[qj], None)
+    (iv, ic, _), (ov, oc, _) = split_convex(v, c, s_re, eps)
+    empty = np.zeros(len(q), dtype=bool)
+    route = np.zeros(len(q), dtype=bool)
+    for j in range(n_j):
+        rr = np.flatnonzero((use[:, j] > 0) & (cut < j))
+        if not len(rr):
+            continue
+        side = _plane_sides(take_rows(iv, rr), None, ic[rr], scale[rr], sv, q[rr], j)[0]
+        has_in = any_rows(side > 0)
+        empty[rr[~has_in]] = True
+        route[rr[has_in & any_rows(side < 0)]] = True
+    empty &= ~route
+    ok = np.flatnonzero(~empty & ~route)
+    return frags.pieces(ok, take_rows(ov, ok), oc[ok], None), np.flatnonzero(empty), np.flatnonzero(route)
 
 
 def _clip_into_volumes(frags: Fragments, q: np.ndarray, use: np.ndarray, sv: ShadowVolumes):
