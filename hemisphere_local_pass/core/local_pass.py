@@ -17,6 +17,7 @@ from .clear_tiles import TileEdges, clear_form_factors, clear_irradiance, clear_
 from .culling import Occluders, build_occluders
 from .form_factor import contour_integral
 from .projection import hemisphere_candidates
+from .rowops import take_rows
 from .scene import Scene
 from .tolerances import COORD_EPS
 from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes, visible_terms
@@ -143,11 +144,11 @@ def _contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
     small = frags.counts <= 4
     noise = None if frags.inf is None else COORD_EPS * np.abs(points).max(axis=1)[frags.point]
     if width <= 4 or small.all() or not small.any():
-        return contour_integral(frags.verts, normals[frags.point], frags.inf, noise)
+        return contour_integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise)
     out = np.empty(len(frags.counts))
-    for sel, w in ((small, 4), (~small, width)):
-        out[sel] = contour_integral(frags.verts[sel, :w], normals[frags.point[sel]],
-                                    None if frags.inf is None else frags.inf[sel, :w],
+    for sel, w in ((np.flatnonzero(small), 4), (np.flatnonzero(~small), width)):
+        out[sel] = contour_integral(take_rows(frags.verts[:, :w], sel), take_rows(normals, frags.point[sel]),
+                                    None if frags.inf is None else take_rows(frags.inf[:, :w], sel),
                                     None if noise is None else noise[sel])
     return out
 
