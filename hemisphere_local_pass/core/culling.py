@@ -329,6 +329,11 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     return tile_of, corners, centers, radii, np.array(occ_of, dtype=np.int64), np.cumsum(tile_ptr), tile_members
 
 
+#: relative rounding of the plane distances in :func:`_beyond` (differences of coordinates and a unit
+#: normal, each a few ulp)
+_ROUNDING = 64 * np.finfo(np.float64).eps
+
+
 def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     """(B, n_o) bool pairs: body b has a vertex strictly on the positive / negative side of occluder o.
 
@@ -361,9 +366,12 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
         eps = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach + noise
         eps_body = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach.max(axis=1, keepdims=True) + noise
         d = np.where(valid[s:s + step, :, None], d, 0.0)
-        # a vertex off the plane by more than rounding but within the plane's tilt uncertainty may be on
-        # either side: as a filter, it counts for both
-        unsure = ((np.abs(d) > 4 * PLANE_EPS * reach + noise) & (np.abs(d) <= eps)).any(axis=1)
+        # a vertex off the plane by more than rounding but within the decision tolerance may be on either
+        # side: as a filter, it counts for both. Rounding here is that of d itself (a few ulp of |rel|):
+        # the relative tolerance 4 PLANE_EPS |rel| is far wider for a vertex far from the plane's
+        # reference vertex (a 1e6 quad seen against a 1e-6 triangle's plane: 3e-6 > the quad's true 1e-6
+        # reach to the triangle's near side, which decides whether the quad can hide part of it)
+        unsure = ((np.abs(d) > _ROUNDING * reach + noise) & (np.abs(d) <= eps)).any(axis=1)
         pos[s:s + step] = (d > eps).any(axis=1) | unsure
         neg[s:s + step] = (d < -eps).any(axis=1) | unsure
         pos_body[s:s + step] = (d > eps_body).any(axis=1)

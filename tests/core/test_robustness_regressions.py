@@ -378,11 +378,63 @@ TINY_ACROSS_PLANE_THROUGH_P_LIMIT = dict(
 )
 
 
-@pytest.mark.xfail(strict=True, reason="open: found 2026-11-22 by a random (dev-profile) run of the property "
-                   "test; main before the solids (5786fb3) fails the same way; not yet explained")
+TINY_ACROSS_PLANE_THROUGH_P_LIMIT_ROTATED = dict(
+    verts=[[0.0, 0.0, 0.0], [670820.3932499368, -2.7755575615628914e-11, 223606.79774997896],
+           [-670820.3932499368, 2.7755575615628914e-11, -223606.79774997896],
+           [-447213.59549995785, 707106.7811865475, -894427.1909999157],
+           [894427.1909999157, 707106.7811865475, -447213.59549995785],
+           [9.486832980505138e-08, 1e-06, -2.846049894151541e-07],
+           [4.110960958218893e-07, 1e-06, -1.2332882874656679e-06],
+           [-8.538149682454624e-07, 1e-06, -6.00832755431992e-07],
+           [316227.7660168379, 1000.0, 632455.5320336759], [632455.5320336758, 1000.0, -316227.7660168378],
+           [-316227.7660168379, 1000.0, -632455.5320336759], [-632455.5320336758, 1000.0, 316227.76601683797]],
+    polygons=[[1, 2, 3, 4], [5, 6, 7], [8, 9, 10, 11]],
+    P=[[0.0, 0.0, 0.0]],
+    N=[[0.0, 1.0, 0.0]],
+    U=[[1.0, 0.0, 0.0]],
+)
+
+
 def test_tiny_triangle_across_a_plane_through_p_in_the_limit(core):
     """A huge quad whose plane contains P (an edge through P) seen in the one-sided limit, a 1e-6
-    triangle next to P straddling that plane, and a huge quad beyond: sum F = 1.064 (F = 0.854, 0.067,
-    0.144) — the triangle's part is counted twice."""
-    F = _ff(core, TINY_ACROSS_PLANE_THROUGH_P_LIMIT)[0]
+    triangle next to P straddling that plane, and a huge quad beyond. Sum F was 1.064 (F = 0.854, 0.067,
+    0.144): the triangle's part beyond the quad's plane was not hidden, because the per-scene filter
+    took the quad's vertices 1e-6 on P's side of the triangle's plane, 7e5 away, as lying in it (its
+    relative tolerance, 4e-12 x 7e5, exceeds 1e-6), so the quad "could not reach" between P and the
+    triangle. Now only the triangle's piece on P's side of the quad's plane is seen."""
+    case = TINY_ACROSS_PLANE_THROUGH_P_LIMIT
+    F = _ff(core, case)[0]
+    assert F.sum() <= 1 + SUM_TOL, F.sum()
+    # independently: the triangle's piece on P's side (the + side, n . u > 0) of the quad's plane,
+    # clipped here by hand, integrated by eq. 4 (the open band at the far quad's rim leaves 1.5e-6).
+    # P lies in that plane within its uncertainty (n . v1 ~ 1e-11 from coordinates of 1e6, 1e-5 of the
+    # triangle's size), and the limit takes the plane through P exactly, as the clip here does
+    v = np.array(case["verts"])
+    n = np.cross(v[2] - v[1], v[4] - v[1])
+    n /= np.linalg.norm(n)
+    assert n @ np.array(case["U"][0]) > 0 and abs(n @ v[1]) < 1e-9
+    tri = v[[5, 6, 7]]
+    d = tri @ n
+    piece = []
+    for i in range(3):
+        a, b, da, db = tri[i], tri[(i + 1) % 3], d[i], d[(i + 1) % 3]
+        if da >= 0:
+            piece.append(a)
+        if (da > 0) != (db > 0):
+            piece.append(a + da / (da - db) * (b - a))
+    from hemisphere_local_pass.core.form_factor import contour_integral
+
+    expect = abs(contour_integral(np.array(piece)[None], np.array(case["N"][0]))[0])
+    assert abs(F[1] - expect) <= 1e-12 * expect, (F[1], expect)
+    assert 1 - 1e-5 < F.sum()
+
+
+@pytest.mark.xfail(strict=True, reason="open: the same scene rotated (a random dev-profile run, 2026-11-22) "
+                   "sums to 1 + 1.8e-7 (1.064 before the filter fix); not yet explained")
+def test_tiny_triangle_across_a_plane_through_p_in_the_limit_rotated(core):
+    """The case above, rotated: the gross error (the triangle's far part not hidden) is gone, but sum F =
+    1 + 1.8e-7 where 1 - 1.45e-6 (the open band at the far quad's rim) is expected. The quad's plane
+    passes P at 2e-11 (its coordinates are 1e6), 2e-5 of the triangle's size; the quad's and the
+    triangle's visible parts near P do not yet take that plane the same way."""
+    F = _ff(core, TINY_ACROSS_PLANE_THROUGH_P_LIMIT_ROTATED)[0]
     assert F.sum() <= 1 + SUM_TOL, F.sum()
