@@ -60,6 +60,8 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     The polygon must lie in the receiver's closed upper hemisphere (clip it first). ``noise (F,)``: the
     receivers' coordinate noise (see :func:`edge_noise`), for edges through P in one-sided limits.
     """
+    if inf is None:
+        return _contour_slot_major(verts, normal)
     a = directions(verts, inf)
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]                              # (F, K) each
     # next vertex along the contour; padding slots repeat the last vertex, so the only wrap-around
@@ -111,6 +113,39 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
         total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], None if inf is None else
                                      (cx[bad], cy[bad], cz[bad]))
+    return _INV_2PI * total
+
+
+def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """:func:`contour_integral` without one-sided limits, on ``(K, F)`` arrays: contiguous along the long
+    axis, so that the per-polygon normal broadcasts along it (a per-row ``(F, 1)`` operand against
+    ``(F, K)`` goes through numpy's buffered iterator, about 5× slower). The same formulas in the same
+    order as the general path: bitwise equal results."""
+    f = verts.shape[0]
+    t = np.ascontiguousarray(verts.transpose(2, 1, 0))                        # (3, K, F)
+    ax, ay, az = t[0], t[1], t[2]
+    bx = np.concatenate([ax[1:], ax[:1]])
+    by = np.concatenate([ay[1:], ay[:1]])
+    bz = np.concatenate([az[1:], az[:1]])
+    ex, ey, ez = bx - ax, by - ay, bz - az
+    cx = ay * ez - az * ey
+    cy = az * ex - ax * ez
+    cz = ax * ey - ay * ex
+    s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
+    d = ax * bx + ay * by + az * bz                                           # a·b
+    gamma = np.arctan2(s, d)
+    ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
+    nrm = np.broadcast_to(normal, (f, 3))
+    proj = cx * nrm[:, 0] + cy * nrm[:, 1] + cz * nrm[:, 2]
+    terms = proj * ratio                                                      # (K, F)
+    total = terms[0].copy()
+    cond = np.abs(terms[0])
+    for j in range(1, terms.shape[0]):
+        total += terms[j]
+        cond += np.abs(terms[j])
+    bad = cond > CANCELLATION * np.abs(total)
+    if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
+        total[bad] = _terms_extended(verts[bad], nrm[bad], (s[:, bad] > 0.0).T, None, None)
     return _INV_2PI * total
 
 

@@ -258,6 +258,8 @@ def irradiance(
 
     occ = _occluders(scene, occluders)
 
+    rad_cols = None if scene.linear else np.ascontiguousarray(scene.poly_radiance.T)   # (3, n) for gathers
+
     def per_chunk(s, e, p, n, u):
         include = np.broadcast_to(emits[None, :], (e - s, scene.n_polygons))
         frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear)
@@ -268,11 +270,13 @@ def irradiance(
             tri = scene.poly_vertices[frags.poly, :3] - p[frags.point][:, None, :]
             contrib = linear_irradiance(frags.verts, frags.counts, n[frags.point], scene.poly_normals[frags.poly],
                                         tri, scene.corner_radiance[frags.poly], form_factor=ff)
+            contrib = np.where(lit[:, None], contrib, 0.0)
+            for c in range(3):
+                out[s:e, c] = np.pi * np.bincount(frags.point, weights=contrib[:, c], minlength=e - s)
         else:
-            contrib = ff[:, None] * scene.poly_radiance[frags.poly]
-        contrib = np.where(lit[:, None], contrib, 0.0)
-        for c in range(3):
-            out[s:e, c] = np.pi * np.bincount(frags.point, weights=contrib[:, c], minlength=e - s)
+            w = np.where(lit, ff, 0.0)
+            for c in range(3):
+                out[s:e, c] = np.pi * np.bincount(frags.point, weights=w * rad_cols[c][frags.poly], minlength=e - s)
         if clear is not None:
             out[s:e] += np.pi * clear_irradiance(clear[1], clear[0], p, n, scene.double_sided)
 

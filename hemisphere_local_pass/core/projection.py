@@ -155,12 +155,13 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     # horizon culling by bounding sphere first (conservative, cheap), then by the vertices
     rel_ci = take_rows(scene.poly_centers, ci)
     rel_ci -= take_rows(points, cp)                                             # (C, 3)
-    height_c = np.einsum("ij,ij->i", rel_ci, normals[cp])
+    height_c = np.einsum("ij,ij->i", rel_ci, take_rows(normals, cp))
     scale = np.sqrt(np.einsum("ij,ij->i", rel_ci, rel_ci)) + scene.poly_radii[ci]
     mask = height_c + scene.poly_radii[ci] > PLANE_EPS * scale
-    cp, ci, rel_ci, scale = cp[mask], ci[mask], rel_ci[mask], scale[mask]
+    mask = np.flatnonzero(mask)
+    cp, ci, rel_ci, scale = cp[mask], ci[mask], take_rows(rel_ci, mask), scale[mask]
     point_noise = COORD_EPS * np.abs(points).max(axis=1)                        # (m,) the receivers' own
-    side = plane_side(scene.poly_normals[ci], rel_ci, scene.poly_center_offsets[ci], scale,
+    side = plane_side(take_rows(scene.poly_normals, ci), rel_ci, scene.poly_center_offsets[ci], scale,
                       None if limit is None else limit[cp], scene.poly_tilt[ci],
                       scene.poly_noise[ci] + point_noise[cp])
     keep = side != 0
@@ -173,7 +174,7 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
         flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale
                   + scene.poly_noise[ci] + point_noise[cp], limit[cp], verts)
     counts = scene.poly_counts[ci]
-    nc = normals[cp]
+    nc = take_rows(normals, cp)
     height = (verts[..., 0] * nc[:, 0:1] + verts[..., 1] * nc[:, 1:2]
               + verts[..., 2] * nc[:, 2:3])                                     # (C, K+1) above the horizon
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["any_rows", "max_abs_rows", "nonzero_rows", "sides", "sum_rows", "take_rows"]
+__all__ = ["at2", "any_rows", "max_abs_rows", "nonzero_rows", "sides", "sum_rows", "take_rows"]
 
 
 def any_rows(b: np.ndarray) -> np.ndarray:
@@ -64,3 +64,10 @@ def nonzero_rows(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def sides(s: np.ndarray, eps: np.ndarray) -> np.ndarray:
     """``+1 / -1 / 0`` (int8) where ``s`` is above ``eps``, below ``-eps``, or between (broadcasting)."""
     return (s > eps).view(np.int8) - (s < -eps).view(np.int8)
+
+
+def at2(a: np.ndarray, i, j) -> np.ndarray:
+    """``a[i, j]`` for a 2-d array and integer index arrays, as one flat gather (numpy's two-array
+    fancy indexing walks a multi-index iterator per element)."""
+    a = np.ascontiguousarray(a)
+    return np.take(a.ravel(), np.asarray(i) * a.shape[1] + j)

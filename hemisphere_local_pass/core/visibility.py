@@ -28,7 +28,7 @@ from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, receiver_side, snap_to_receiver
-from .rowops import any_rows, max_abs_rows, nonzero_rows, sum_rows, take_rows
+from .rowops import any_rows, at2, max_abs_rows, nonzero_rows, sum_rows, take_rows
 from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -322,10 +322,10 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     than any vertex's on-plane tolerance (see :func:`_sphere_inside`): every vertex is inside the
     others, and so is every piece later cut from the body, so the clips skip them too.
     """
-    cos_angle = np.einsum("ij,ij->i", ax_b[body], ax_o[q])
+    cos_angle = np.einsum("ij,ij->i", take_rows(ax_b, body), take_rows(ax_o, q))
     cos_sum = np.cos(half_b[body] + np.minimum(half_o[q], np.pi))
     keep = np.flatnonzero((half_b[body] + half_o[q] >= np.pi) | (cos_angle >= cos_sum - 1e-12))
-    rel = center_rel[body[keep]]                                                 # (p, 3)
+    rel = take_rows(center_rel, body[keep])                                      # (p, 3)
     qk = q[keep]
     off = take_rows(sv.offset, qk)                                               # (p, J)
     dist = (take_rows(sv.nx, qk) * rel[:, 0:1] + take_rows(sv.ny, qk) * rel[:, 1:2]
@@ -350,10 +350,17 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
         v = take_rows(verts, b)                                                  # (E, K, 3)
         nrm, off = take_rows(normal_flat, qj), sv.offset.ravel()[qj]
         if inf is None:
-            # padding slots repeat the last vertex, so they change neither test: no classification
-            s_re = v[..., 0] * nrm[:, 0:1] + v[..., 1] * nrm[:, 1:2] + v[..., 2] * nrm[:, 2:3] - off[:, None]
-            eps = (PLANE_EPS * (max_abs_rows(v) + np.abs(off)))[:, None]
-            has_in, has_out = any_rows(s_re > eps), any_rows(s_re < -eps)
+            # padding slots repeat the last vertex, so they change neither test: no classification.
+            # Slot-major (K, E): per-entry operands broadcast along the long axis (see rowops); the same
+            # sums in the same order as _sides, so the clips see bitwise the same distances
+            t = np.ascontiguousarray(v.transpose(2, 1, 0))                       # (3, K, E)
+            s_re = t[0] * nrm[:, 0] + t[1] * nrm[:, 1] + t[2] * nrm[:, 2] - off   # (K, E)
+            eps = PLANE_EPS * (max_abs_rows(v) + np.abs(off))
+            above, below = s_re > eps, s_re < -eps
+            has_in, has_out = above[0].copy(), below[0].copy()
+            for k in range(1, len(above)):
+                has_in |= above[k]
+                has_out |= below[k]
         else:
             side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
             has_in, has_out = any_rows(side > 0), any_rows(side < 0)
@@ -522,8 +529,8 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
     if c_n == 0 or n_q == 0:
         return (np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64),
                 np.zeros((0, sv.normal.shape[1]), dtype=bool), np.zeros(c_n, dtype=bool))
-    k_of = table[cand.point, occ.members[cand.poly]]                            # (C,) cluster instance
-    ti = cov.t_tab[cand.point, occ.tile_of[cand.poly]]                          # (C,) tile instance or -1
+    k_of = at2(table, cand.point, occ.members[cand.poly])                       # (C,) cluster instance
+    ti = at2(cov.t_tab, cand.point, occ.tile_of[cand.poly])                     # (C,) tile instance or -1
     hidden = np.zeros(c_n, dtype=bool)
     found = k_of >= 0
     hidden[found] = cov.cluster_covered[k_of[found]]
@@ -544,9 +551,10 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
     if len(body):
         ci = cand.poly[body]
         sig = sv.side[q] > 0
-        beyond = np.where(sig, occ.beyond_pos[ci, sv.occluder[q]], occ.beyond_neg[ci, sv.occluder[q]])
+        oq = sv.occluder[q]
+        beyond = np.where(sig, at2(occ.beyond_pos, ci, oq), at2(occ.beyond_neg, ci, oq))
         p_pos = cand.side[body] < 0                                              # P on the + side of the body
-        beyond &= np.where(p_pos, occ.front_pos[ci, sv.occluder[q]], occ.front_neg[ci, sv.occluder[q]])
+        beyond &= np.where(p_pos, at2(occ.front_pos, ci, oq), at2(occ.front_neg, ci, oq))
         body, q = body[beyond], q[beyond]
     if len(occ.coplanar_occ):
         # coplanar overlapping surfaces: the one facing P wins, then the lower input index
@@ -559,7 +567,8 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
         wins = (faces_o & ~faces_c) | ((faces_o == faces_c) & (occ.first_source[co] < scene.poly_source[cand.poly[cb]]))
         body = np.concatenate([body, cb[wins]])
         q = np.concatenate([q, cq[wins] + sv.n_base])                          # the cone-only copy
-    c_rel = scene.poly_centers[cand.poly] - points[cand.point]
+    c_rel = take_rows(scene.poly_centers, cand.poly)
+    c_rel -= take_rows(points, cand.point)
     ax_c, half_c, _ = _cone(c_rel, scene.poly_radii[cand.poly])
     kept, covd, planes = _test_pairs(body, q, cand.verts, cand.inf, cand.counts, c_rel, scene.poly_radii[cand.poly],
                                      sv, ax_c, half_c, cov.ax_o, cov.half_o)
