@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .clipping import classify, split_convex
+from .clipping import split_convex
 from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, receiver_side, snap_to_receiver
-from .rowops import any_rows, at2, max_abs_rows, nonzero_rows, sum_rows, take_rows
+from .rowops import any_rows, at2, max_abs_rows, nonzero_rows, sides, sum_rows, take_rows
 from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -384,17 +384,23 @@ def _sphere_inside(dist, offset, radius, rmax):
 def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
     """Sides (E, K) int8 of vertices ``verts (E, K, 3)`` w.r.t. one plane each (``normal (E, 3)``,
     ``offset (E,)``; ``offset_inf`` its first-order part or None), padding slots 0; with the signed
-    distances (E, K), their first-order parts or None, and the tolerances ``PLANE_EPS (scale + |offset|)``."""
-    s_re = (verts[..., 0] * normal[:, 0:1] + verts[..., 1] * normal[:, 1:2] + verts[..., 2] * normal[:, 2:3]
-            - offset[:, None])
-    s_inf = None
-    if inf is not None:
-        s_inf = (inf[..., 0] * normal[:, 0:1] + inf[..., 1] * normal[:, 1:2] + inf[..., 2] * normal[:, 2:3]
-                 - offset_inf[:, None])
+    distances (E, K), their first-order parts or None, and the tolerances ``PLANE_EPS (scale + |offset|)``.
+
+    Computed slot-major (the per-entry plane broadcasts along the long axis, see :mod:`.rowops`); the
+    (E, K) results are transposed views."""
+    vt = np.ascontiguousarray(verts.transpose(2, 1, 0))                        # (3, K, E)
+    s_t = vt[0] * normal[:, 0] + vt[1] * normal[:, 1] + vt[2] * normal[:, 2] - offset
     eps = PLANE_EPS * (scale + np.abs(offset))
-    side = classify(s_re, eps, s_inf)
-    side *= np.arange(verts.shape[1])[None, :] < counts[:, None]
-    return side, s_re, s_inf, eps
+    side_t = sides(s_t, eps)
+    si_t = None
+    if inf is not None:
+        it = np.ascontiguousarray(inf.transpose(2, 1, 0))
+        si_t = it[0] * normal[:, 0] + it[1] * normal[:, 1] + it[2] * normal[:, 2] - offset_inf
+        on = side_t == 0
+        if on.any():
+            side_t[on] = sides(si_t[on], PLANE_EPS)
+    side_t *= np.arange(verts.shape[1])[:, None] < counts[None, :]
+    return side_t.T, s_t.T, None if si_t is None else si_t.T, eps
 
 
 @dataclass
