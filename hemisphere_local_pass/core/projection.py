@@ -26,7 +26,8 @@ from .rowops import any_rows, nonzero_rows, sides, take_rows
 from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["Candidates", "Projection", "flat_rows", "hemisphere_candidates", "project_point", "receiver_side"]
+__all__ = ["Candidates", "Projection", "flat_rows", "hemisphere_candidates", "onto_planes_through_p", "project_point",
+           "receiver_side"]
 
 
 def _side(d, tol, d_inf, tilt=0.0):
@@ -82,10 +83,13 @@ def flat_rows(normals, first_vertex_rel, tol, limit, verts):
     d = (normals * first_vertex_rel).sum(axis=1)
     flat = (np.abs(d) <= tol) & limit.any(axis=1)
     if flat.any():
-        n = normals[flat]
-        v = verts[flat]
-        verts[flat] = v - np.matmul(v, n[:, :, None]) * n[:, None, :]
+        verts[flat] = onto_planes_through_p(verts[flat], normals[flat])
     return flat
+
+
+def onto_planes_through_p(verts: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``verts (C, K, 3)`` (P-local) moved along ``normals (C, 3)`` (unit) into the planes through P."""
+    return verts - np.matmul(verts, normals[:, :, None]) * normals[:, None, :]
 
 
 def snap_to_receiver(verts: np.ndarray, eps: np.ndarray) -> None:
@@ -106,7 +110,9 @@ class Candidates:
     Attributes:
         point: (C,) receiver index; poly: (C,) convex polygon index; side: (C,) receiver side of the
         polygon's plane (+1 behind, -1 in front); verts: (C, K, 3) clipped P-local vertices;
-        inf: (C, K, 3) first-order parts or None; counts: (C,).
+        inf: (C, K, 3) first-order parts or None; counts: (C,); flat: (C,) bool or None — in a
+        one-sided limit, the candidates whose plane contains P (their vertices were moved exactly into
+        the plane through P, see :func:`flat_rows`, and so must every piece cut from them).
     """
 
     point: np.ndarray
@@ -115,6 +121,7 @@ class Candidates:
     verts: np.ndarray
     inf: np.ndarray | None
     counts: np.ndarray
+    flat: np.ndarray | None = None
 
 
 def _tile_pairs(occ, points, normals, hidden_tiles):
@@ -170,9 +177,10 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     # one spare slot: clipping a convex polygon by one plane adds at most one vertex
     verts = take_rows(scene.poly_vertices_spare, ci)                            # (C, K+1, 3)
     verts -= take_rows(points, cp)[:, None, :]
+    flat = None
     if limit is not None:
-        flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale
-                  + scene.poly_noise[ci] + point_noise[cp], limit[cp], verts)
+        flat = flat_rows(scene.poly_normals[ci], verts[:, 0], (PLANE_EPS + scene.poly_tilt[ci]) * scale
+                         + scene.poly_noise[ci] + point_noise[cp], limit[cp], verts)
     counts = scene.poly_counts[ci]
     nc = take_rows(normals, cp)
     height = (verts[..., 0] * nc[:, 0:1] + verts[..., 1] * nc[:, 1:2]
@@ -184,6 +192,7 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
         up = np.flatnonzero(above)
         side, cp, ci, verts, counts, height, eps, straddle = (
             take_rows(x, up) for x in (side, cp, ci, verts, counts, height, eps, straddle))
+        flat = None if flat is None else flat[up]
     inf = None
     if limit is not None:
         inf = np.broadcast_to(-limit[cp, None, :], verts.shape).copy()
@@ -214,7 +223,7 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
         verts[s], counts[s] = iv, ic
         if inf is not None:
             inf[s] = iinf
-    return Candidates(cp, ci, side, verts, inf, counts)
+    return Candidates(cp, ci, side, verts, inf, counts, flat)
 
 
 @dataclass

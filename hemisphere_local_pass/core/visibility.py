@@ -27,7 +27,7 @@ from .clipping import split_convex
 from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
-from .projection import Candidates, flat_rows, receiver_side, snap_to_receiver
+from .projection import Candidates, flat_rows, onto_planes_through_p, receiver_side, snap_to_receiver
 from .rowops import any_rows, at2, max_abs_rows, nonzero_rows, sides, sum_rows, take_rows
 from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
@@ -597,20 +597,24 @@ def _plane_sides(verts, inf, counts, scale, sv: ShadowVolumes, q: np.ndarray, j)
 
 
 def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes,
-                            planes: np.ndarray | None = None) -> Fragments:
+                            planes: np.ndarray | None = None, flat=None) -> Fragments:
     """Remove from every fragment the parts inside its occluders' shadow volumes.
 
     Args:
         frags: fragments (``owner``: their candidates); ptr, ids: the candidates' occluder instances
             (CSR, nearest first); sv: the shadow volumes; planes: ``(len(ids), J)`` bool, the planes of
-            each volume that may cut the candidate (see :func:`occluder_pairs`), or None for all.
+            each volume that may cut the candidate (see :func:`occluder_pairs`), or None for all;
+            flat: None or ``(candidate flags (C,), plane normals (n, 3))``: in a one-sided limit, the
+            candidates lying in a plane through P (see :class:`.projection.Candidates`), whose pieces
+            are put back into that plane after every cut (an intersection interpolated along a 1e6 edge
+            lands ~1e-10 off the plane, which near P would tilt the piece out of edge-on).
     Returns:
         the visible fragments.
     """
-    return Fragments.concat(_subtract(frags, ptr, ids, sv, planes))
+    return Fragments.concat(_subtract(frags, ptr, ids, sv, planes, flat))
 
 
-def _subtract(frags: Fragments, ptr, ids, sv: ShadowVolumes, planes) -> list[Fragments]:
+def _subtract(frags: Fragments, ptr, ids, sv: ShadowVolumes, planes, flat=None) -> list[Fragments]:
     """:func:`subtract_shadow_volumes` as a list of fragment sets (not padded to one width)."""
     dual = frags.inf is not None
     n_occ = np.diff(ptr)
@@ -655,6 +659,12 @@ def _subtract(frags: Fragments, ptr, ids, sv: ShadowVolumes, planes) -> list[Fra
                     (iv, ic, ii), (ov, oc, oi) = split_convex(
                         cur_v[rc, :k], cur_c[rc], s_re[cut, :k], eps[cut],
                         inf=cur_i[rc, :k] if dual else None, s_inf=s_inf[cut, :k] if dual else None)
+                    if flat is not None:
+                        fr = np.flatnonzero(flat[0][work.owner[item[rc]]])
+                        if len(fr):
+                            nn = flat[1][work.poly[item[rc[fr]]]]
+                            iv[fr] = onto_planes_through_p(iv[fr], nn)
+                            ov[fr] = onto_planes_through_p(ov[fr], nn)
                     pieces.append((item[rc], ov, oc, oi))
                     cur_v, cur_i = _store_pieces(cur_v, cur_i, cur_c, rc, iv, ii, ic)
                 if not has_in.all():
@@ -717,7 +727,7 @@ IE_MAX_VOLUMES = 1
 
 
 def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: ShadowVolumes, planes: np.ndarray,
-                  use: np.ndarray | None = None):
+                  use: np.ndarray | None = None, flat=None):
     """The visible part of every fragment as a signed sum of convex pieces (for sums over fragments).
 
     By inclusion–exclusion ``A \\ (V_1 ∪ … ∪ V_k) = A − Σ A∩V_i + Σ A∩V_i∩V_j − …`` as signed measures:
@@ -729,9 +739,9 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
 
     ``planes (len(ids), J)``: the planes of each volume that may cut the candidate (see
     :func:`occluder_pairs`). ``use (F,)`` bool: the fragments to take (default all; gathered once per
-    set below, so the caller need not copy). Returns a list of ``(terms, sign)``: fragment sets (each padded to its own
-    width, so that eq. 4 runs on each without padding them all to the widest) and the sign (+1 or -1)
-    that weights their integrals.
+    set below, so the caller need not copy); ``flat`` as for :func:`subtract_shadow_volumes`. Returns a
+    list of ``(terms, sign)``: fragment sets (each padded to its own width, so that eq. 4 runs on each
+    without padding them all to the widest) and the sign (+1 or -1) that weights their integrals.
     """
     n_occ = np.diff(ptr)[frags.owner]
     many = n_occ > IE_MAX_VOLUMES
@@ -762,7 +772,7 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
             use[one[route]] = True
     parts.append((frags.take(use & ~many), 1.0))
     if (use & many).any():
-        parts += [(sub, 1.0) for sub in _subtract(frags.take(use & many), ptr, ids, sv, planes)]
+        parts += [(sub, 1.0) for sub in _subtract(frags.take(use & many), ptr, ids, sv, planes, flat)]
     few = np.flatnonzero(chain)
     # level 1: every (fragment, volume) pair; then each term grows by a volume after its last one
     rows = np.repeat(few, n_occ[few])
