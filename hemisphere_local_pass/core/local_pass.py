@@ -285,7 +285,12 @@ def irradiance(
                 out[s:e, c] = np.pi * np.bincount(frags.point, weights=w * rad_cols[c][frags.poly], minlength=e - s)
         if clear is not None:
             out[s:e] += np.pi * clear_irradiance(clear[1], clear[0], p, n, scene.double_sided)
+        if nonnegative:
+            # the sums mix signed terms (F(A) - F(A ∩ V), welded edges); with radiance >= 0 the exact
+            # irradiance is >= 0, and a rounding-level -1e-22 where nothing is seen is clamped
+            np.maximum(out[s:e], 0.0, out=out[s:e])
 
+    nonnegative = bool((scene.corner_radiance >= 0).all() if scene.linear else (scene.poly_radiance >= 0).all())
     _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
     return out
 
