@@ -13,7 +13,7 @@ CORE="$(core_venv)"
 run "$CORE/bin/ruff" check .
 run "$CORE/bin/python" -m pytest -q tests/core ${HLP_EXTRA_CORE_TESTS:-}
 NP124="$(core_np124_venv)"
-HYPOTHESIS_PROFILE=dev run "$NP124/bin/python" -m pytest -q -p no:cacheprovider tests/core -m "not slow"
+HYPOTHESIS_PROFILE=ci-quick run "$NP124/bin/python" -m pytest -q -p no:cacheprovider tests/core -m "not slow"
 
 for tier in scripts/test_tier_*.sh; do
     [ -e "$tier" ] && run bash "$tier"
@@ -22,7 +22,7 @@ done
 # the core once more on numpy 1.26 (what Blender 4.2-5.0 bundle), in the bpy 4.2 environment
 source scripts/bpy_envs.sh
 if PY42="$(bpy_python 4.2)"; then
-    HYPOTHESIS_PROFILE=dev run "$PY42" -m pytest -q -p no:cacheprovider tests/core -m "not slow"
+    HYPOTHESIS_PROFILE=ci-quick run "$PY42" -m pytest -q -p no:cacheprovider tests/core -m "not slow"
 else
     echo "=== no bpy 4.2 environment for the numpy 1.26 core run" >&2
     status=1
