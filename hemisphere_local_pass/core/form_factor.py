@@ -62,6 +62,8 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     """
     if inf is None:
         return _contour_slot_major(verts, normal)
+    # one-sided limits: vertices at P take their first-order directions, and edges through P their
+    # first-order great circles
     a = directions(verts, inf)
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]                              # (F, K) each
     # next vertex along the contour; padding slots repeat the last vertex, so the only wrap-around
@@ -69,37 +71,28 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     bx = np.concatenate([ax[:, 1:], ax[:, :1]], axis=1)
     by = np.concatenate([ay[:, 1:], ay[:, :1]], axis=1)
     bz = np.concatenate([az[:, 1:], az[:, :1]], axis=1)
-    # a × b computed as a × (b − a): the same vector, but for a short edge far from P the raw products
-    # of a×b cancel to the last digits (a 1e-6 polygon at distance 1 would lose six of them)
-    ex, ey, ez = bx - ax, by - ay, bz - az
-    cx = ay * ez - az * ey
-    cy = az * ex - ax * ez
-    cz = ax * ey - ay * ex
-    s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
-    d = ax * bx + ay * by + az * bz                                           # a·b
-    gamma = np.arctan2(s, d)
-    if inf is not None:
-        # an edge through P in a one-sided limit: its end points are antipodal seen from P (a×b = 0,
-        # γ = π) and its great circle is the limit of the planes through P + εu: use the first-order
-        # part of the cross product, (a + ε a')×(b + ε b') = a×b + ε (a×b' + a'×b)
-        tol = PLANE_EPS * np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz))
-        if noise is not None:
-            b3 = np.stack([bx, by, bz], axis=-1)
-            tol = tol + edge_noise(a, b3, noise) * np.sqrt(ex * ex + ey * ey + ez * ez)
-        through = (s <= tol) & (d < 0)
-        through &= (np.abs(inf) > 0).any(axis=2)                              # only rows with a limit
-        if through.any():
-            ia = inf[through]
-            ib = np.concatenate([inf[:, 1:], inf[:, :1]], axis=1)[through]
-            a_t = np.stack([ax[through], ay[through], az[through]], axis=-1)
-            b_t = np.stack([bx[through], by[through], bz[through]], axis=-1)
-            c1 = np.cross(a_t, ib) + np.cross(ia, b_t)
-            cx, cy, cz = cx.copy(), cy.copy(), cz.copy()
-            cx[through], cy[through], cz[through] = c1[:, 0], c1[:, 1], c1[:, 2]
-            s = s.copy()
-            s[through] = np.linalg.norm(c1, axis=1)
-            gamma = gamma.copy()
-            gamma[through] = np.pi
+    (ex, ey, ez), (cx, cy, cz), s, d, gamma = _edge_geometry(ax, ay, az, bx, by, bz)
+    # an edge through P in a one-sided limit: its end points are antipodal seen from P (a×b = 0,
+    # γ = π) and its great circle is the limit of the planes through P + εu: use the first-order
+    # part of the cross product, (a + ε a')×(b + ε b') = a×b + ε (a×b' + a'×b)
+    tol = PLANE_EPS * np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz))
+    if noise is not None:
+        b3 = np.stack([bx, by, bz], axis=-1)
+        tol = tol + edge_noise(a, b3, noise) * np.sqrt(ex * ex + ey * ey + ez * ez)
+    through = (s <= tol) & (d < 0)
+    through &= (np.abs(inf) > 0).any(axis=2)                              # only rows with a limit
+    if through.any():
+        ia = inf[through]
+        ib = np.concatenate([inf[:, 1:], inf[:, :1]], axis=1)[through]
+        a_t = np.stack([ax[through], ay[through], az[through]], axis=-1)
+        b_t = np.stack([bx[through], by[through], bz[through]], axis=-1)
+        c1 = np.cross(a_t, ib) + np.cross(ia, b_t)
+        cx, cy, cz = cx.copy(), cy.copy(), cz.copy()
+        cx[through], cy[through], cz[through] = c1[:, 0], c1[:, 1], c1[:, 2]
+        s = s.copy()
+        s[through] = np.linalg.norm(c1, axis=1)
+        gamma = gamma.copy()
+        gamma[through] = np.pi
     ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
     nrm = np.broadcast_to(normal, (a.shape[0], 3))
     proj = cx * nrm[:, 0:1] + cy * nrm[:, 1:2] + cz * nrm[:, 2:3]
@@ -111,8 +104,7 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     cond = sum_rows(np.abs(terms))
     bad = cond > CANCELLATION * np.abs(total)
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
-        total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], None if inf is None else
-                                     (cx[bad], cy[bad], cz[bad]))
+        total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], (cx[bad], cy[bad], cz[bad]))
     return _INV_2PI * total
 
 
@@ -127,13 +119,7 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
     bx = np.concatenate([ax[1:], ax[:1]])
     by = np.concatenate([ay[1:], ay[:1]])
     bz = np.concatenate([az[1:], az[:1]])
-    ex, ey, ez = bx - ax, by - ay, bz - az
-    cx = ay * ez - az * ey
-    cy = az * ex - ax * ez
-    cz = ax * ey - ay * ex
-    s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
-    d = ax * bx + ay * by + az * bz                                           # a·b
-    gamma = np.arctan2(s, d)
+    _, (cx, cy, cz), s, _, gamma = _edge_geometry(ax, ay, az, bx, by, bz)
     ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
     nrm = np.broadcast_to(normal, (f, 3))
     proj = cx * nrm[:, 0] + cy * nrm[:, 1] + cz * nrm[:, 2]
@@ -147,6 +133,21 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
         total[bad] = _terms_extended(verts[bad], nrm[bad], (s[:, bad] > 0.0).T, None, None)
     return _INV_2PI * total
+
+
+def _edge_geometry(ax, ay, az, bx, by, bz):
+    """Per edge ``a -> b`` (components as arrays of any one shape): ``(b − a)``, ``a × b``, ``|a × b|``,
+    ``a · b`` and the edge angle ``γ = atan2(|a × b|, a · b)``.
+
+    ``a × b`` is computed as ``a × (b − a)``: the same vector, but for a short edge far from P the raw
+    products of ``a × b`` cancel to the last digits (a 1e-6 polygon at distance 1 would lose six)."""
+    ex, ey, ez = bx - ax, by - ay, bz - az
+    cx = ay * ez - az * ey
+    cy = az * ex - ax * ez
+    cz = ax * ey - ay * ex
+    s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
+    d = ax * bx + ay * by + az * bz                                           # a·b
+    return (ex, ey, ez), (cx, cy, cz), s, d, np.arctan2(s, d)
 
 
 #: relative cancellation in eq. 4 above which a row is recomputed in extended precision: float64

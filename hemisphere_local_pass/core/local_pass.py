@@ -117,21 +117,17 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
         clear = (pairs, te)
     cand = hemisphere_candidates(scene, points, normals, limit, include, occ, skip)
     ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
+    allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
+    flat = None if cand.flat is None else (cand.flat, scene.poly_normals)
     if use_clear:
         # signed terms, integrated set by set; the sums need only their ids (verts None)
-        allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
-        flat = None if cand.flat is None else (cand.flat, scene.poly_normals)
         terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
         ff = np.concatenate([sign * np.maximum(t.side * _contour_by_width(t, normals, points), 0.0)
                              for t, sign in terms] or [np.zeros(0)])
         frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
                                         for a in ("counts", "point", "poly", "side", "owner")))
     else:
-        vis = np.flatnonzero(~hidden)
-        frags = Fragments(cand.verts[vis], None if cand.inf is None else cand.inf[vis], cand.counts[vis],
-                          cand.point[vis], cand.poly[vis], cand.side[vis], vis)
-        frags = subtract_shadow_volumes(frags, ptr, ids, sv, planes,
-                                        None if cand.flat is None else (cand.flat, scene.poly_normals))
+        frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
         ff = np.maximum(frags.side * _contour_by_width(frags, normals, points), 0.0)
     if not reps.all():

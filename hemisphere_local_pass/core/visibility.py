@@ -20,6 +20,7 @@ to meet a shadow volume is kept whole (no needless splitting).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -120,9 +121,17 @@ class ShadowVolumes:
             self.n_face = self.n_base
         if self.occludes is None:
             self.occludes = np.ones(self.n_base, dtype=bool)
-        # the planes as component arrays (Q, J) for gathers, and the unused slots (always inside)
-        self.nx, self.ny, self.nz = (np.ascontiguousarray(self.normal[..., c]) for c in range(3))
-        self.unused = (self.nx == 0) & (self.ny == 0) & (self.nz == 0) & (self.offset < 0)
+
+    @cached_property
+    def normal_components(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The plane normals as three contiguous (Q, J) arrays (for gathers by instance)."""
+        return tuple(np.ascontiguousarray(self.normal[..., c]) for c in range(3))
+
+    @cached_property
+    def unused(self) -> np.ndarray:
+        """(Q, J) bool: unused plane slots (zero normal, offset < 0: always inside)."""
+        nx, ny, nz = self.normal_components
+        return (nx == 0) & (ny == 0) & (nz == 0) & (self.offset < 0)
 
 
 def _cone(rel_c: np.ndarray, radius: np.ndarray):
@@ -328,8 +337,10 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     rel = take_rows(center_rel, body[keep])                                      # (p, 3)
     qk = q[keep]
     off = take_rows(sv.offset, qk)                                               # (p, J)
-    dist = (take_rows(sv.nx, qk) * rel[:, 0:1] + take_rows(sv.ny, qk) * rel[:, 1:2]
-            + take_rows(sv.nz, qk) * rel[:, 2:3] - off)                          # (p, J)
+    nx, ny, nz = sv.normal_components
+    dist = (take_rows(nx, qk) * rel[:, 0:1] + take_rows(ny, qk) * rel[:, 1:2]
+            + take_rows(nz, qk) * rel[:, 2:3] - off)                             # (p, J) centres' distances
+
     rad = radius[body[keep]]
     rmax = np.maximum(np.maximum(np.abs(rel[:, 0]), np.abs(rel[:, 1])), np.abs(rel[:, 2]))
     reach = rad * (1.0 + 1e-9) + PLANE_EPS * rmax
@@ -353,14 +364,9 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
             # padding slots repeat the last vertex, so they change neither test: no classification.
             # Slot-major (K, E): per-entry operands broadcast along the long axis (see rowops); the same
             # sums in the same order as _sides, so the clips see bitwise the same distances
-            t = np.ascontiguousarray(v.transpose(2, 1, 0))                       # (3, K, E)
-            s_re = t[0] * nrm[:, 0] + t[1] * nrm[:, 1] + t[2] * nrm[:, 2] - off   # (K, E)
+            s_re = _distances_t(np.ascontiguousarray(v.transpose(2, 1, 0)), nrm, off)   # (K, E)
             eps = PLANE_EPS * (max_abs_rows(v) + np.abs(off))
-            above, below = s_re > eps, s_re < -eps
-            has_in, has_out = above[0].copy(), below[0].copy()
-            for k in range(1, len(above)):
-                has_in |= above[k]
-                has_out |= below[k]
+            has_in, has_out = _any_t(s_re > eps), _any_t(s_re < -eps)
         else:
             side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
             has_in, has_out = any_rows(side > 0), any_rows(side < 0)
@@ -381,6 +387,21 @@ def _sphere_inside(dist, offset, radius, rmax):
     return dist > margin[:, None] + PLANE_EPS * 2.0 * np.abs(offset)
 
 
+def _distances_t(xt: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Signed distances ``(K, E)`` of points ``xt (3, K, E)`` (slot-major) from one plane per column,
+    ``normal (E, 3) . x - offset (E,)``. Every plane test goes through here, so equal inputs give
+    bitwise equal distances (the pair test's decisions are the clips' decisions)."""
+    return xt[0] * normal[:, 0] + xt[1] * normal[:, 1] + xt[2] * normal[:, 2] - offset
+
+
+def _any_t(b: np.ndarray) -> np.ndarray:
+    """``b.any(axis=0)`` for a slot-major ``b (K, E)``, row by row (numpy's reduction is per column)."""
+    out = b[0].copy()
+    for row in b[1:]:
+        out |= row
+    return out
+
+
 def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
     """Sides (E, K) int8 of vertices ``verts (E, K, 3)`` w.r.t. one plane each (``normal (E, 3)``,
     ``offset (E,)``; ``offset_inf`` its first-order part or None), padding slots 0; with the signed
@@ -388,14 +409,12 @@ def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
 
     Computed slot-major (the per-entry plane broadcasts along the long axis, see :mod:`.rowops`); the
     (E, K) results are transposed views."""
-    vt = np.ascontiguousarray(verts.transpose(2, 1, 0))                        # (3, K, E)
-    s_t = vt[0] * normal[:, 0] + vt[1] * normal[:, 1] + vt[2] * normal[:, 2] - offset
+    s_t = _distances_t(np.ascontiguousarray(verts.transpose(2, 1, 0)), normal, offset)   # (K, E)
     eps = PLANE_EPS * (scale + np.abs(offset))
     side_t = sides(s_t, eps)
     si_t = None
     if inf is not None:
-        it = np.ascontiguousarray(inf.transpose(2, 1, 0))
-        si_t = it[0] * normal[:, 0] + it[1] * normal[:, 1] + it[2] * normal[:, 2] - offset_inf
+        si_t = _distances_t(np.ascontiguousarray(inf.transpose(2, 1, 0)), normal, offset_inf)
         on = side_t == 0
         if on.any():
             side_t[on] = sides(si_t[on], PLANE_EPS)
@@ -527,9 +546,9 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
     strictly beyond the occluder's plane, on the side away from P (precomputed per scene, per side).
 
     Returns ``ptr (C+1,), ids`` (CSR lists of shadow-volume instances per candidate), ``planes
-    (len(ids), J)`` bool (the planes of each volume the candidate may cross; the others contain it, see
-    :func:`_test_pairs`) and ``hidden (C,)``: candidates wholly inside one shadow volume, which need no
-    further work.
+    (len(ids), J)`` int8 (per plane of each volume: 0 it contains the candidate, 1 it may cut it, 2 it
+    cuts the candidate itself; see :func:`_test_pairs`) and ``hidden (C,)``: candidates wholly inside
+    one shadow volume, which need no further work.
     """
     c_n, n_q = len(cand.point), sv.n_base
     if c_n == 0 or n_q == 0:
@@ -602,8 +621,8 @@ def subtract_shadow_volumes(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, 
 
     Args:
         frags: fragments (``owner``: their candidates); ptr, ids: the candidates' occluder instances
-            (CSR, nearest first); sv: the shadow volumes; planes: ``(len(ids), J)`` bool, the planes of
-            each volume that may cut the candidate (see :func:`occluder_pairs`), or None for all;
+            (CSR, nearest first); sv: the shadow volumes; planes: ``(len(ids), J)``, non-zero for the planes
+            of each volume that may cut the candidate (see :func:`occluder_pairs`), or None for all;
             flat: None or ``(candidate flags (C,), plane normals (n, 3))``: in a one-sided limit, the
             candidates lying in a plane through P (see :class:`.projection.Candidates`), whose pieces
             are put back into that plane after every cut (an intersection interpolated along a 1e6 edge
@@ -762,7 +781,8 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
         one, entry, cuts = one[single], entry[single], cuts[single]
         if len(one):
             a = frags.take(one)
-            pieces, whole, route = _outside_of_one_plane(a, ids[entry], _first_true(cuts), take_rows(planes, entry), sv)
+            pieces, whole, route = _outside_of_one_plane(a, ids[entry], np.argmax(cuts, axis=1),
+                                                         take_rows(planes, entry), sv)
             parts.append((pieces, 1.0))
             chain[one] = False
             chain[one[route]] = True       # a later plane cuts the inside piece after all: the general way
@@ -792,14 +812,6 @@ def visible_terms(frags: Fragments, ptr: np.ndarray, ids: np.ndarray, sv: Shadow
         cur = cur.take(ext)
         sign = -sign
     return [(f, sg) for f, sg in parts if len(f.owner)]
-
-
-def _first_true(b: np.ndarray) -> np.ndarray:
-    """Index ``(F,)`` of the first True of every row of ``b (F, J)`` (every row has one)."""
-    out = np.full(b.shape[0], b.shape[1] - 1, dtype=np.int64)
-    for j in range(b.shape[1] - 2, -1, -1):
-        out[b[:, j]] = j
-    return out
 
 
 def _outside_of_one_plane(frags: Fragments, q: np.ndarray, cut: np.ndarray, use: np.ndarray, sv: ShadowVolumes):
