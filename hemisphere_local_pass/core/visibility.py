@@ -185,6 +185,11 @@ def shadow_volumes(occ: Occluders, points, normals, limit=None) -> tuple[ShadowV
     offset = np.full((q, k + 1), -1.0)
     normal[:, 0] = sigma[:, None] * nrm
     offset[:, 0] = sigma * np.einsum("qc,qc->q", nrm, x[:, 0])
+    if limit is not None:
+        # P in the plane within its uncertainty: the plane through P exactly, as for the candidates. The
+        # moved vertices are in it only to rounding (n . x ~ 1e-16 |x|: 7e-11 for a 7e5 occluder, which
+        # shifts a cut next to P by 1e-5 rad; its sign and size differed between numpy 1.x and 2.x)
+        offset[flat, 0] = 0.0
     offset_inf = None
     if limit is not None:
         offset_inf = np.zeros((q, k + 1))
