@@ -140,7 +140,13 @@ def check_writable(path) -> str:
     if not os.path.exists(folder):
         parent = folder
         while parent and not os.path.exists(parent):
-            parent = os.path.dirname(parent)
+            up = os.path.dirname(parent)
+            if os.path.exists(up) and os.path.isdir(up) and not os.access(up, os.X_OK):
+                raise OutputRefused(f"cannot write '{path}': permission denied: the directory '{up}' cannot be "
+                                    f"entered (mode {stat.filemode(os.stat(up).st_mode)})")
+            if up == parent:
+                break
+            parent = up
         if parent and not os.path.isdir(parent):
             raise OutputRefused(f"cannot write '{path}': '{parent}' is a file, not a directory")
         raise OutputRefused(f"cannot write '{path}': the directory '{folder}' does not exist")
