@@ -3,6 +3,7 @@ files, tile previews, real reasons for unwritable places, names the user sees, v
 
 import importlib
 import os
+import shlex
 import shutil
 import stat
 import subprocess
@@ -252,6 +253,28 @@ def test_unwritable_places_give_their_real_reason(hlp, tmp_path):
     (tmp_path / "f").write_text("")
     with pytest.raises(ValueError, match="f' is not a directory"):
         job.run_local_pass(output=str(tmp_path / "f" / "x.exr"))
+
+
+def test_read_only_file_system_is_named(hlp, tmp_path):
+    """A read-only mount (a private mount namespace where the machine allows it, as root in CI);
+    otherwise the same message from the EROFS errno the kernel would give."""
+    import errno
+
+    op = output_paths(hlp)
+    mnt = tmp_path / "ro"
+    mnt.mkdir()
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    code = ("import sys; sys.path.insert(0, sys.argv[1])\n"
+            "from hemisphere_local_pass.blender import output_paths as o\n"
+            "try: o.check_writable(sys.argv[2])\nexcept ValueError as e: print(e)")
+    args = " ".join(shlex.quote(a) for a in (sys.executable, "-c", code, root, str(mnt / "x.exr")))
+    script = f"mount -t tmpfs -o ro none {shlex.quote(str(mnt))} && {args}"
+    res = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True)
+    if res.returncode == 0 and res.stdout.strip():
+        assert f"the file system of '{mnt}' is read-only (mounted read-only at '{mnt}')" in res.stdout, res.stdout
+    else:  # no mount namespaces here: the message for the errno a read-only file system gives
+        msg = op.unwritable_reason(str(tmp_path), OSError(errno.EROFS, os.strerror(errno.EROFS)))
+        assert msg.startswith(f"the file system of '{tmp_path}' is read-only"), msg
 
 
 # ---------------------------------------------------------------------- 10. names the user sees
