@@ -544,10 +544,13 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
         if mask is not None and not todo.any():
             continue  # Edit Mode, nothing selected on this object: nothing is written on it
         jobs.append((ob, domain, pts, nrm, lim, rho_r, emit_r, mask, todo))
-    if not jobs:
-        names = ", ".join(f"'{ob.name}'" for ob in edit_objects)
-        raise ValueError(f"nothing selected: {names} in Edit Mode with no vertex selected; select the vertices "
-                         "to evaluate, or leave Edit Mode to evaluate whole meshes")
+    if not any(j[8].any() for j in jobs):
+        if edit_objects:
+            names = ", ".join(f"'{ob.name}'" for ob in edit_objects)
+            raise ValueError(f"nothing selected: {names} in Edit Mode with no vertex selected; select the vertices "
+                             "to evaluate, or leave Edit Mode to evaluate whole meshes")
+        names = ", ".join(f"'{ob.name}'" for ob in obs)
+        raise ValueError(f"nothing to evaluate: {names} have no faces (loose vertices are no receivers)")
     all_pts = np.concatenate([j[2][j[8]] for j in jobs])
     all_nrm = np.concatenate([j[3][j[8]] for j in jobs])
     all_lim = np.concatenate([j[4][j[8]] for j in jobs])
