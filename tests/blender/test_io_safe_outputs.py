@@ -175,7 +175,7 @@ def test_checkpoint_of_an_interrupted_run_is_kept(hlp, tmp_path, monkeypatch):
 
 
 # ------------------------------------------------------------------------ 3. unsaved + relative
-def test_relative_output_of_an_unsaved_file_is_refused(hlp, tmp_path, monkeypatch):
+def test_relative_output_of_an_unsaved_file_is_refused(hlp, tmp_path, monkeypatch, capfd):
     build_box(subdivisions=1, resolution=4)
     monkeypatch.chdir(tmp_path)
     settings = bpy.context.scene.hlp_settings
@@ -184,8 +184,11 @@ def test_relative_output_of_an_unsaved_file_is_refused(hlp, tmp_path, monkeypatc
         bpy.ops.hlp.render_local_pass()
     assert os.listdir(tmp_path) == []  # nothing written into the working directory
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "saved.blend"))
+    (tmp_path / "local_pass.png").write_text("a user's file")
+    capfd.readouterr()
     assert bpy.ops.hlp.render_local_pass() == {'FINISHED'}
-    assert (tmp_path / "local_pass.exr").is_file()
+    assert (tmp_path / "local_pass.exr").is_file() and (tmp_path / "local_pass.png").read_text() == "a user's file"
+    assert f"Not written: preview '{tmp_path / 'local_pass.png'}' exists" in capfd.readouterr().out
     with pytest.raises(RuntimeError, match="exists"):  # the operator property overrides Output > Overwrite
         bpy.ops.hlp.render_local_pass(overwrite=False)
     bpy.context.scene.render.use_overwrite = False
