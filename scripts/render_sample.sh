@@ -27,7 +27,7 @@ bpy.ops.wm.open_mainfile(filepath=blend)
 sys.path.insert(0, ".")
 from hemisphere_local_pass.blender import job  # noqa: E402
 
-sys.exit(job.cli_main(["render", "--output", exr]))
+sys.exit(job.cli_main(["render", "--output", exr, "--overwrite"]))  # out/ belongs to this script
 PYEOF
 ms=$(( ($(date +%s%N) - start) / 1000000 ))
 printf 'render_sample: total %d.%03d s (scene + local pass); outputs in out/\n' $((ms / 1000)) $((ms % 1000))

@@ -3,8 +3,9 @@
 Registered with ``bpy.utils.register_cli_command`` (Blender 4.2+) by ``registration.register()``.
 The handler is an argparse program that makes no UI calls and returns the process exit code; the
 sub-commands (``render``, ``merge``) and their options belong to ``job.cli_main``. Under Blender 3.4,
-which has no ``--command``, the same job runs as
-``blender -b scene.blend --python-expr "import hemisphere_local_pass as h; h.run_local_pass(...)"``.
+which has no ``--command``, the same program runs as ``blender -b scene.blend --python-exit-code 1
+--python-expr "...; from hemisphere_local_pass.blender import job; sys.exit(job.cli_main([...]))"``
+(both parts are needed for a non-zero exit on errors; docs/blender.md).
 """
 
 import argparse

@@ -26,11 +26,14 @@ import argparse
 import hashlib
 import math
 import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .interrupts import stops_on_first_sigint
 
 __all__ = ["JobReport", "cli_main", "parse_tile", "run_local_pass", "tile_window"]
 
@@ -59,6 +62,8 @@ class JobReport:
         black_occluders: objects without the radiosity attribute exported as black occluders.
         dropped_polygons: degenerate polygons the core dropped ("Object.polygon i: reason").
         outputs: files written (EXR, PNG) and attributes written ("Object:hlp_radiance").
+        refused: files not written, each a message naming the path and why (an existing PNG preview
+            that is not ours, or that may not be overwritten); see :mod:`.output_paths`.
         image_size, window: pixels mode: (W, H) and the computed (x0, y0, x1, y1).
         resumed_points: receivers taken from a checkpoint instead of being computed.
         cancelled: the job stopped early (finished chunks are in the checkpoint).
@@ -75,6 +80,7 @@ class JobReport:
     black_occluders: list = field(default_factory=list)
     dropped_polygons: list = field(default_factory=list)
     outputs: list = field(default_factory=list)
+    refused: list = field(default_factory=list)
     image_size: tuple | None = None
     window: tuple | None = None
     resumed_points: int = 0
@@ -378,8 +384,8 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
         meta["hlp_tile"] = "{}/{}".format(*parse_tile(tile))
     if output is not None:
         report.outputs.append(outputs.write_exr(output, layers, size=size, window=window, metadata=meta))
-        if preview:
-            png = os.path.splitext(output)[0] + ".png"
+        if preview:  # the preview's path, checked by output_paths.plan_outputs (None: not written)
+            png = preview
             full = np.zeros((size[1], size[0], 3))
             full[y0:y1, x0:x1] = layers["radiance"]
             report.outputs.append(outputs.write_png(png, full))
@@ -393,10 +399,22 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
 
 
 # -------------------------------------------------------------------------------------- vertices
-def _selected_meshes(scene, view_layer):
+def _selected_meshes(scene, view_layer, names=None):
+    """The receiving mesh objects: ``names`` (``--objects``) when given, else the selected meshes."""
+    if names:
+        obs = []
+        for name in names:
+            ob = scene.objects.get(name)
+            if ob is None:
+                raise ValueError(f"--objects: scene '{scene.name}' has no object '{name}'")
+            if ob.type != "MESH":
+                raise ValueError(f"--objects: object '{name}' is a {ob.type.lower()}, not a mesh")
+            if ob not in obs:
+                obs.append(ob)
+        return obs
     obs = [ob for ob in scene.objects if ob.type == "MESH" and ob.select_get(view_layer=view_layer)]
     if not obs:
-        raise ValueError("vertices mode needs at least one selected mesh object")
+        raise ValueError("vertices mode needs at least one selected mesh object (or name them: --objects NAME ...)")
     return obs
 
 
@@ -483,12 +501,12 @@ def _receiver_materials(ob, mesh, arrays, rho_attr, emit_attr):
 
 
 def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, emit_attr, radiance_attribute,
-                  irradiance_attribute, output, resume, progress, cancel, explicit_targets):
+                  irradiance_attribute, output, resume, progress, cancel, explicit_targets, objects=None):
     import bpy
 
     from . import outputs
 
-    obs = _selected_meshes(scene, view_layer)
+    obs = _selected_meshes(scene, view_layer, objects)
     edit_objects = [ob for ob in obs if ob.mode == "EDIT"]
     if edit_objects:
         for ob in edit_objects:
@@ -499,7 +517,8 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
         mesh = ob.data
         for name in (radiance_attribute, irradiance_attribute):
             outputs.prepare_vertex_attribute(mesh, name, "", protected=(attribute, rho_attr, emit_attr),
-                                             explicit=name in explicit_targets)
+                                             explicit=name in explicit_targets, owner=ob.name,
+                                             role="radiance" if name == radiance_attribute else "irradiance")
         matrix = np.array(ob.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
         domain, pts, nrm, lim, arrays, cpoly = _receivers(ob, mesh, matrix)
         rho, emit = _receiver_materials(ob, mesh, arrays, rho_attr, emit_attr)
@@ -522,7 +541,16 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
         used = np.ones(len(pts), dtype=bool) if domain == "CORNER" else np.bincount(
             arrays.loop_vertices, minlength=len(pts)) > 0  # loose vertices are no receivers
         todo = used if mask is None else used & mask
+        if mask is not None and not todo.any():
+            continue  # Edit Mode, nothing selected on this object: nothing is written on it
         jobs.append((ob, domain, pts, nrm, lim, rho_r, emit_r, mask, todo))
+    if not any(j[8].any() for j in jobs):
+        if edit_objects:
+            names = ", ".join(f"'{ob.name}'" for ob in edit_objects)
+            raise ValueError(f"nothing selected: {names} in Edit Mode with no vertex selected; select the vertices "
+                             "to evaluate, or leave Edit Mode to evaluate whole meshes")
+        names = ", ".join(f"'{ob.name}'" for ob in obs)
+        raise ValueError(f"nothing to evaluate: {names} have no faces (loose vertices are no receivers)")
     all_pts = np.concatenate([j[2][j[8]] for j in jobs])
     all_nrm = np.concatenate([j[3][j[8]] for j in jobs])
     all_lim = np.concatenate([j[4][j[8]] for j in jobs])
@@ -549,6 +577,7 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
             radiance = emit_r + rho_r / np.pi * h  # eq. 5
             outputs.write_vertex_colours(ob.data, radiance_attribute, domain, radiance, todo)
             outputs.write_vertex_colours(ob.data, irradiance_attribute, domain, h, todo)
+            outputs.make_active_colour(ob.data, radiance_attribute)  # the viewport shows L, not H
             ob.data.update()
             report.outputs += [f"{ob.name}:{radiance_attribute}", f"{ob.name}:{irradiance_attribute}"]
             results[ob.name] = (domain, radiance, h, todo)
@@ -561,6 +590,7 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
 
 
 # ------------------------------------------------------------------------------------------- job
+@stops_on_first_sigint
 def run_local_pass(
     scene=None,
     *,
@@ -582,6 +612,8 @@ def run_local_pass(
     preview=True,
     image=True,
     view_layer=None,
+    overwrite=False,
+    objects=None,
 ):
     """Run the exact local pass on ``scene`` (default: the context's scene).
 
@@ -608,6 +640,10 @@ def run_local_pass(
             ``hlp_irradiance``); an existing attribute of that name is overwritten only if it was
             made by this extension or is named here explicitly.
         image: store the pixels in the image datablock "Local Pass".
+        overwrite: replace an existing output (EXR, PNG preview, checkpoint) that this extension
+            wrote; files it did not write are never replaced (:mod:`.output_paths`). A refused
+            preview is listed in ``report.refused``.
+        objects: vertices mode: names of the mesh objects to evaluate (default: the selected ones).
 
     Returns:
         :class:`JobReport`.
@@ -649,15 +685,21 @@ def run_local_pass(
         parse_tile(tile)
         if mode != "pixels":
             raise ValueError("--tile applies to pixels mode only")
+    refused = []
     if output is not None:
-        from .outputs import check_writable
+        from .output_paths import plan_outputs
 
-        output = check_writable(output)
+        output, preview, refused = plan_outputs(output, mode=mode, tile=tile, preview=preview, overwrite=overwrite,
+                                                resume=resume)
     elif tile is not None:
         raise ValueError("a tile needs an output file")
     if view_layer is None:
         ctx_layer = getattr(bpy.context, "view_layer", None)
         view_layer = ctx_layer if ctx_layer is not None and ctx_layer.id_data == scene else scene.view_layers[0]
+    if objects and mode != "pixels":
+        _selected_meshes(scene, view_layer, objects)  # unknown names: fail before the (slow) export
+    elif objects:
+        raise ValueError("--objects applies to vertices mode only")
     if mode == "pixels":
         from .camera import camera_params
 
@@ -668,7 +710,7 @@ def run_local_pass(
     exported = export_scene(scene, view_layer=view_layer, attribute=attribute, reflectivity_attribute=rho_attr,
                             emission_attribute=emit_attr, missing=missing, double_sided=double_sided)
     report = JobReport(mode=mode, black_occluders=list(exported.black_occluders),
-                       dropped_polygons=exported.dropped_names(), objects=list(exported.objects))
+                       dropped_polygons=exported.dropped_names(), objects=list(exported.objects), refused=refused)
     try:
         if mode == "pixels":
             _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
@@ -676,9 +718,12 @@ def run_local_pass(
         else:
             explicit = {n for n in (radiance_attribute, irradiance_attribute) if n}
             _run_vertices(scene, view_layer, exported, report, attribute=attribute, rho_attr=rho_attr,
-                          emit_attr=emit_attr, radiance_attribute=radiance_attribute or "hlp_radiance",
-                          irradiance_attribute=irradiance_attribute or "hlp_irradiance", output=output,
-                          resume=resume, progress=progress, cancel=cancel, explicit_targets=explicit)
+                          emit_attr=emit_attr,
+                          radiance_attribute=(radiance_attribute or pick(None, "radiance_attribute", "")
+                                              or "hlp_radiance"),
+                          irradiance_attribute=(irradiance_attribute or pick(None, "irradiance_attribute", "")
+                                                or "hlp_irradiance"), output=output,
+                          resume=resume, progress=progress, cancel=cancel, explicit_targets=explicit, objects=objects)
     finally:
         report.seconds = time.perf_counter() - start
     return report
@@ -737,15 +782,50 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--missing", choices=("error", "black"), default=None,
                    help="objects without the attribute: error (default) or black occluders")
     r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace existing outputs this extension wrote (EXR, PNG, checkpoint; vertices: the .blend, "
+                   "keeping the old one as .blend1); files it did not write are never replaced")
+    r.add_argument("--objects", nargs="+", metavar="NAME",
+                   help="vertices: the mesh objects to evaluate (default: the objects selected in the file)")
+    r.add_argument("--radiance-attribute", metavar="NAME", help="vertices: radiance target (default hlp_radiance)")
+    r.add_argument("--irradiance-attribute", metavar="NAME",
+                   help="vertices: irradiance target (default hlp_irradiance)")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
-    m = sub.add_parser("merge", help="assemble tile EXRs into one image")
+    m = sub.add_parser("merge", help="assemble tile EXRs into one image (and its PNG preview)")
     m.add_argument("tiles", nargs="+", metavar="TILE_FILES")
     m.add_argument("--output", "-o", required=True)
+    m.add_argument("--no-preview", action="store_true", help="do not write the PNG preview of the merged image")
+    m.add_argument("--overwrite", action="store_true", help="replace an existing merged image this extension wrote")
     return parser
 
 
+def _check_blend_output(path: str, overwrite: bool) -> str:
+    """Vertices mode's ``--output FILE.blend``: resolved and writable; never the open file itself,
+    never an existing file that is not a .blend; an existing .blend only with ``--overwrite``."""
+    import bpy
+
+    from . import output_paths as op
+
+    path = op.check_writable(path)
+    if not path.lower().endswith(".blend"):
+        raise ValueError("in vertices mode --output names the .blend file to save the colour attributes to")
+    if not os.path.lexists(path):
+        return path
+    if bpy.data.filepath and os.path.exists(bpy.data.filepath) and os.path.samefile(path, bpy.data.filepath):
+        raise op.OutputRefused(f"--output '{path}' is the open .blend file: the job never overwrites its input; "
+                               "give another file name")
+    found = op.describe(path)
+    if not os.path.isfile(path) or op.file_kind(path) != "blend":
+        raise op.OutputRefused(f"--output '{path}' exists and is {found}, not a .blend file: it is never replaced")
+    if not overwrite:
+        raise op.OutputRefused(f"--output '{path}' exists: pass --overwrite to replace it (the old file is kept "
+                               "as .blend1)")
+    return path
+
+
 def _save_blend(path: str) -> str:
-    """Save a copy of the current file (with the new attributes) to ``path``, atomically."""
+    """Save a copy of the current file (with the new attributes) to ``path``, atomically; an existing
+    file there is kept as ``path + "1"`` (Blender's own backup name)."""
     import bpy
 
     from .outputs import replace_atomically
@@ -753,6 +833,11 @@ def _save_blend(path: str) -> str:
     def save(tmp):
         os.unlink(tmp)  # a new file: Blender then keeps no .blend1 backup of the placeholder
         bpy.ops.wm.save_as_mainfile(filepath=tmp, copy=True)
+        if os.path.isfile(path):  # only with --overwrite (_check_blend_output): keep the old file
+            backup = path + "1"
+            if os.path.lexists(backup):
+                os.unlink(backup)
+            shutil.copy2(path, backup)
 
     return replace_atomically(path, save)
 
@@ -763,12 +848,19 @@ def cli_main(argv) -> int:
     parser = build_parser()
     args = parser.parse_args(list(argv))
     prefix = "hemisphere_local_pass: "
+    checkpoint = ""
     try:
         if args.command == "merge":
             from .outputs import merge_exr
 
-            path = merge_exr(args.tiles, os.path.abspath(args.output))
+            done = {"written": [], "refused": []}
+            path = merge_exr(args.tiles, args.output, overwrite=args.overwrite, preview=not args.no_preview,
+                             report=done)
             print(f"{prefix}merged {len(args.tiles)} tile(s) into {path}")
+            for written in done["written"]:
+                print(f"{prefix}wrote {written}")
+            for message in done["refused"]:
+                print(f"{prefix}not written: {message}", file=sys.stderr)
             return 0
         import bpy
 
@@ -778,18 +870,27 @@ def cli_main(argv) -> int:
             mode = str(settings.mode).lower() if settings is not None else "pixels"
         if args.output is None:
             raise ValueError("render needs --output FILE.exr (pixels mode) or --output FILE.blend (vertices mode)")
-        output = os.path.abspath(args.output)
-        if mode == "vertices" and not output.lower().endswith(".blend"):
-            raise ValueError("in vertices mode --output names the .blend file to save the colour attributes to")
+        output = args.output
+        if mode == "vertices":
+            output = _check_blend_output(output, args.overwrite)
+        elif args.objects:
+            raise ValueError("--objects applies to vertices mode only (--mode vertices)")
+        from .output_paths import checkpoint_path, resolve
+
+        checkpoint = checkpoint_path(resolve(output))
         report = run_local_pass(
             output=output, mode=mode, attribute=args.attribute, region=_region(args.region),
             tile=args.tile, resume=args.resume, samples=args.samples, missing=args.missing,
             progress=None if args.quiet else _StderrProgress(), preview=not args.no_preview,
+            overwrite=args.overwrite, objects=args.objects, radiance_attribute=args.radiance_attribute,
+            irradiance_attribute=args.irradiance_attribute,
         )
         if mode == "vertices":
             report.outputs.append(_save_blend(output))
     except KeyboardInterrupt:
-        print(f"{prefix}interrupted; finished chunks are saved, rerun with --resume to continue", file=sys.stderr)
+        where = checkpoint if os.path.isfile(checkpoint) else None
+        kept = f"finished chunks are kept in {where}" if where else "no chunk had finished (nothing to keep)"
+        print(f"{prefix}interrupted (Ctrl-C); {kept}; rerun with --resume to continue", file=sys.stderr)
         return 130
     except Exception as exc:  # one line, non-zero: the command is for scripts and render farms
         from ..core import Cancelled
@@ -804,4 +905,6 @@ def cli_main(argv) -> int:
     print(f"{prefix}{report.summary()}")
     for path in report.outputs:
         print(f"{prefix}wrote {path}")
+    for message in report.refused:
+        print(f"{prefix}not written: {message}", file=sys.stderr)
     return 0

@@ -11,7 +11,7 @@ __all__ = ["HLP_OT_render_local_pass", "job_arguments"]
 
 def job_arguments(scene, settings: HLP_PG_settings) -> dict:
     """Keyword arguments of ``job.run_local_pass`` taken from the scene settings."""
-    output = bpy.path.abspath(settings.output_path) if settings.output_path else None
+    output = settings.output_path or None  # '//' is resolved by the job (an error for an unsaved file)
     return {
         "scene": scene,
         "mode": settings.mode.lower(),
@@ -22,6 +22,7 @@ def job_arguments(scene, settings: HLP_PG_settings) -> dict:
         "samples": settings.samples,
         "output": output if settings.mode == 'PIXELS' else None,
         "double_sided": settings.double_sided,
+        "overwrite": scene.render.use_overwrite,  # Output Properties > Output > Overwrite, as Blender's renders
     }
 
 
@@ -53,6 +54,13 @@ class HLP_OT_render_local_pass(bpy.types.Operator):
     bl_label = "Render Local Pass"
     bl_options = {'REGISTER'}
 
+    overwrite: bpy.props.BoolProperty(
+        name="Overwrite",
+        description=("Replace existing output files this extension wrote (default: Output Properties > Output > "
+                     "Overwrite); other files are never replaced"),
+        options={'SKIP_SAVE'},
+    )
+
     @classmethod
     def poll(cls, context):
         return context.scene is not None and hasattr(context.scene, "hlp_settings")
@@ -63,12 +71,14 @@ class HLP_OT_render_local_pass(bpy.types.Operator):
 
         scene = context.scene
         kwargs = job_arguments(scene, scene.hlp_settings)
+        if self.properties.is_property_set("overwrite"):
+            kwargs["overwrite"] = self.overwrite
         progress = _Progress(context)
         start = time.perf_counter()
         try:
             result = job.run_local_pass(progress=progress, **kwargs)
-        except Cancelled:
-            self.report({'WARNING'}, "Local pass cancelled")
+        except (Cancelled, KeyboardInterrupt):
+            self.report({'WARNING'}, "Local pass cancelled; finished chunks are kept in the checkpoint")
             return {'CANCELLED'}
         except (ValueError, OSError, RuntimeError) as ex:
             self.report({'ERROR'}, str(ex))
@@ -76,6 +86,8 @@ class HLP_OT_render_local_pass(bpy.types.Operator):
         finally:
             progress.end()
         seconds = time.perf_counter() - start
+        for message in getattr(result, "refused", ()):
+            self.report({'WARNING'}, f"Not written: {message}")
         summary = getattr(result, "summary", None)
         self.report({'INFO'}, summary() if callable(summary) else f"Local pass done in {seconds:.1f} s")
         return {'FINISHED'}

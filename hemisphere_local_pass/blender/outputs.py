@@ -27,7 +27,9 @@ its data window; :func:`merge_exr` assembles the tiles.
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
+import zlib
 
 import numpy as np
 
@@ -42,6 +44,8 @@ __all__ = [
     "write_exr",
     "write_png",
     "write_vertex_colours",
+    "make_active_colour",
+    "prepare_vertex_attribute",
 ]
 
 #: Depth written where a pixel's centre sample misses every surface (as Blender's Z pass).
@@ -59,32 +63,36 @@ _META = ("hlp_tile", "hlp_window", "hlp_fingerprint", "hlp_software")
 
 
 def check_writable(path: str) -> str:
-    """Fail early (``ValueError``) when ``path`` cannot be written; return it made absolute."""
-    path = os.path.abspath(os.fspath(path))
-    folder = os.path.dirname(path)
-    if os.path.isdir(path):
-        raise ValueError(f"output path '{path}' is a directory")
-    if not os.path.isdir(folder):
-        raise ValueError(f"cannot write '{path}': the directory '{folder}' does not exist")
+    """Fail early (``ValueError`` giving the real reason) when ``path`` cannot be written; return it
+    resolved (absolute, ``//`` relative to the .blend file, symbolic links followed)."""
+    from .output_paths import check_writable as check
+
+    return check(path)
+
+
+def _new_file_mode(path: str) -> int:
+    """Permission bits for the file written at ``path``: those of the file it replaces, else what
+    ``open(path, "w")`` gives (0666 & ~umask). ``mkstemp`` alone would leave 0600."""
+    from .output_paths import umask
+
     try:
-        fd, probe = tempfile.mkstemp(prefix=".hlp-probe-", dir=folder)
-    except OSError as exc:
-        raise ValueError(f"cannot write '{path}': {exc.strerror or exc}") from None
-    os.close(fd)
-    os.unlink(probe)
-    return path
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        return 0o666 & ~umask()
 
 
 def replace_atomically(path: str, write) -> str:
-    """Call ``write(tmp_path)`` on a temporary file in the directory of ``path``, then rename it
-    over ``path`` (``os.replace``): readers never see a half-written file."""
-    path = os.path.abspath(os.fspath(path))
+    """Call ``write(tmp_path)`` on a temporary file in the directory of ``path``, give it ordinary
+    permissions (:func:`_new_file_mode`), then rename it over ``path`` (``os.replace``): readers
+    never see a half-written file. A symbolic link is written through: its target is replaced."""
+    path = os.path.realpath(os.path.abspath(os.fspath(path)))
     folder, base = os.path.split(path)
     stem, ext = os.path.splitext(base)
     fd, tmp = tempfile.mkstemp(prefix=f".{stem}.", suffix=f".tmp{ext}", dir=folder)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, _new_file_mode(path))
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -261,8 +269,16 @@ def read_exr(path: str):
     return layers, (w_img, h_img), window, header
 
 
-def merge_exr(paths, output: str) -> str:
-    """Assemble tile files (row bands of one image) into ``output``; every row must be covered once."""
+def merge_exr(paths, output: str, *, overwrite: bool = False, preview: bool = False, report=None) -> str:
+    """Assemble tile files (row bands of one image) into ``output``; every row must be covered once.
+
+    ``output`` (and the preview) follow the overwrite rule of :mod:`.output_paths` (an existing file
+    is replaced only when it is ours and ``overwrite``). ``preview``: also write the whole image's
+    PNG preview next to it (needs bpy); a refused preview is listed in ``report["refused"]``
+    (``report``: a dict with lists ``written`` and ``refused``) instead of stopping the merge."""
+    from .output_paths import OutputRefused, check_new_or_ours
+
+    output = check_writable(output)
     if not paths:
         raise ValueError("merge needs at least one tile file")
     size = None
@@ -302,7 +318,25 @@ def merge_exr(paths, output: str) -> str:
         raise ValueError(f"tiles leave a gap: row {gap} (from the bottom) is in no tile file")
     crop = {k: v[y0:y1, x0:x1] for k, v in full.items()}
     meta = {"hlp_fingerprint": fingerprint} if fingerprint else None
-    return write_exr(output, crop, size=size, window=window, metadata=meta)
+    output = check_new_or_ours(output, "exr", overwrite=overwrite, what="merge output")
+    png = None
+    if preview:
+        try:
+            png = check_new_or_ours(os.path.splitext(output)[0] + ".png", "png", overwrite=overwrite, what="preview")
+        except OutputRefused as exc:
+            if report is not None:
+                report["refused"].append(f"{exc}")
+    path = write_exr(output, crop, size=size, window=window, metadata=meta)
+    if report is not None:
+        report["written"].append(path)
+    if png is not None:
+        w, h = size
+        rgb = np.zeros((h, w, 3))
+        rgb[y0:y1, x0:x1] = crop["radiance"]
+        written = write_png(png, rgb)
+        if report is not None:
+            report["written"].append(written)
+    return path
 
 
 def store_image(name: str, rgba: np.ndarray):
@@ -330,6 +364,23 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
 
 
+def _png_mark_ours(path: str):
+    """Insert the ``tEXt`` chunk ``Software = hemisphere_local_pass`` right after IHDR: how a later
+    run recognises the preview as ours (see :mod:`.output_paths`)."""
+    from .output_paths import SOFTWARE
+
+    with open(path, "rb") as fh:
+        buf = fh.read()
+    if buf[:8] != b"\x89PNG\r\n\x1a\n" or buf[12:16] != b"IHDR":
+        raise ValueError(f"'{path}' is not the PNG Blender was asked to write")
+    end = 8 + 12 + int.from_bytes(buf[8:12], "big")  # after IHDR: length, type, data, CRC
+    data = b"Software\0" + SOFTWARE.encode("latin-1")
+    chunk = (len(data).to_bytes(4, "big") + b"tEXt" + data
+             + (zlib.crc32(b"tEXt" + data) & 0xFFFFFFFF).to_bytes(4, "big"))
+    with open(path, "wb") as fh:
+        fh.write(buf[:end] + chunk + buf[end:])
+
+
 def write_png(path: str, rgb: np.ndarray, *, exposure: float = 0.0) -> str:
     """Write a preview PNG of linear ``rgb (H, W, 3)`` (row 0 at the bottom): scaled by
     ``2**exposure``, clipped to [0, 1], sRGB-encoded (a plain "Standard" view transform), 8-bit,
@@ -347,6 +398,7 @@ def write_png(path: str, rgb: np.ndarray, *, exposure: float = 0.0) -> str:
             img.filepath_raw = tmp
             img.file_format = "PNG"
             img.save()
+            _png_mark_ours(tmp)
 
         return replace_atomically(path, save)
     finally:
@@ -358,24 +410,51 @@ def write_png(path: str, rgb: np.ndarray, *, exposure: float = 0.0) -> str:
 OWNED_KEY = "hlp_owned_attributes"
 
 
-def prepare_vertex_attribute(mesh, name: str, domain: str, *, protected=(), explicit: bool = False):
+#: Where the user sets each vertices-mode target name (panel field, command-line option).
+TARGET_OPTIONS = {
+    "radiance": "Radiance Attribute in the panel (Vertices mode), --radiance-attribute NAME on the command line",
+    "irradiance": "Irradiance Attribute in the panel (Vertices mode), --irradiance-attribute NAME on the command line",
+}
+
+
+def prepare_vertex_attribute(mesh, name: str, domain: str, *, protected=(), explicit: bool = False, owner=None,
+                             role: str = "radiance"):
     """Check that ``name`` may be written on ``mesh`` (an owner's message otherwise).
 
     Allowed when the attribute does not exist, was created by this extension (listed in the mesh's
     ``hlp_owned_attributes`` property), or the user named it explicitly as the target. Never when it
-    is one of ``protected`` (the radiosity input) or a built-in attribute.
+    is one of ``protected`` (the radiosity input) or a built-in attribute. Messages name the object
+    ``owner`` (default: the mesh) as the user sees it in the outliner, and the setting ``role``
+    ("radiance" / "irradiance") that chooses another name.
     """
     existing = mesh.attributes.get(name)
+    who = f"object '{owner}'" if owner else f"mesh '{mesh.name}'"
+    where = TARGET_OPTIONS.get(role, TARGET_OPTIONS["radiance"])
     if name in protected:
-        raise ValueError(f"mesh '{mesh.name}': the output attribute '{name}' is also an input of the job")
+        raise ValueError(f"{who}: the output attribute '{name}' is also an input of the job; choose another name: "
+                         f"{where}")
     if name.startswith(".") or name in ("position", "sharp_face", "material_index", "UVMap"):
-        raise ValueError(f"mesh '{mesh.name}': '{name}' is a built-in attribute and cannot be an output")
+        raise ValueError(f"{who}: '{name}' is a built-in attribute and cannot be an output; choose another name: "
+                         f"{where}")
     if existing is None:
         return
     owned = list(mesh.get(OWNED_KEY, []))
     if name not in owned and not explicit:
-        raise ValueError(f"mesh '{mesh.name}' already has a user attribute '{name}'; it is not overwritten "
-                         "unless you name it as the output attribute (or rename it)")
+        mesh_note = f" (on its mesh '{mesh.name}')" if owner and owner != mesh.name else ""
+        raise ValueError(f"{who} already has a user attribute '{name}'{mesh_note}; it is not overwritten: "
+                         f"choose another name ({where}), or rename yours")
+
+
+def make_active_colour(mesh, name: str):
+    """Make the colour attribute ``name`` the active one (what the viewport's Attribute colour and
+    vertex paint show); Blender 3.2+ API names differ by version."""
+    attr = mesh.attributes.get(name)
+    if attr is None:
+        return
+    for group in (getattr(mesh, "color_attributes", None), mesh.attributes):
+        if group is not None and hasattr(group, "active_color"):  # 3.2+ (color_attributes: 3.3+)
+            group.active_color = group.get(name) if hasattr(group, "get") else attr
+            return
 
 
 def write_vertex_colours(mesh, name: str, domain: str, values: np.ndarray, mask=None):

@@ -46,5 +46,10 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
             col = layout.column()
             col.prop(settings, "samples")
             col.prop(settings, "output_path")
+            col.prop(context.scene.render, "use_overwrite", text="Overwrite")  # Blender's own Output > Overwrite
+        else:
+            col = layout.column(heading="Output")
+            col.prop(settings, "radiance_attribute", text="Radiance Attribute")
+            col.prop(settings, "irradiance_attribute", text="Irradiance Attribute")
 
         layout.operator(HLP_OT_render_local_pass.bl_idname, icon='RENDER_STILL')

@@ -66,6 +66,18 @@ class HLP_PG_settings(bpy.types.PropertyGroup):
         default="//local_pass.exr",
         subtype='FILE_PATH',
     )
+    radiance_attribute: StringProperty(
+        name="Radiance Attribute",
+        description=("Colour attribute that receives the radiance L = E + rho/pi H (vertices mode); an existing "
+                     "attribute of that name is replaced only if this extension made it"),
+        default="hlp_radiance",
+    )
+    irradiance_attribute: StringProperty(
+        name="Irradiance Attribute",
+        description=("Colour attribute that receives the irradiance H (vertices mode); an existing attribute of "
+                     "that name is replaced only if this extension made it"),
+        default="hlp_irradiance",
+    )
     double_sided: BoolProperty(
         name="Double Sided",
         description="Polygons emit their radiosity from both sides (else only from the front, the normal side)",

@@ -2,7 +2,8 @@
 
 ``register()`` registers ``classes`` in order, attaches ``Scene.hlp_settings`` and, where Blender has
 it (4.2+), ``bpy.utils.register_cli_command``; ``unregister()`` undoes all of it in reverse. Both are
-safe to call repeatedly (register/unregister/register/unregister).
+safe to call repeatedly (register/unregister/register/unregister), and ``register()`` twice in a row
+is harmless.
 """
 
 import bpy
@@ -22,9 +23,12 @@ _cli_handle = None
 
 
 def register():
+    """Register everything; harmless when already registered (an add-on enabled with ``--addons`` and
+    a script calling ``register()`` again: each class is registered once)."""
     global _cli_handle
     for cls in classes:
-        bpy.utils.register_class(cls)
+        if not cls.is_registered:
+            bpy.utils.register_class(cls)
     bpy.types.Scene.hlp_settings = bpy.props.PointerProperty(type=props.HLP_PG_settings)
     if hasattr(bpy.utils, "register_cli_command") and _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command(cli.COMMAND, cli.handler)

@@ -353,7 +353,8 @@ def _object_part(name, ob, mesh, matrix, *, attribute, rho_attr, emit_attr, miss
     arrays, radiance, rho, emit = local
     if radiance is None and missing != "black":
         raise ValueError(f"object '{name}' has no attribute '{attribute}' (the radiosity of its polygons); "
-                         f"add it, or choose missing=\"black\" to treat the object as a black occluder")
+                         "add it, or set Missing Attribute to Black Occluder (command line: --missing black; "
+                         "Python: missing=\"black\") to treat the object as a black occluder")
     m = np.asarray(matrix, dtype=np.float64).reshape(4, 4)
     world = arrays.vertices @ m[:3, :3].T + m[:3, 3]
     loops = arrays.loop_vertices

@@ -398,7 +398,7 @@ def test_cli_render_merge_errors_and_ctrl_c(hlp, tmp_path, capsys, monkeypatch):
     assert job.cli_main(["render", "-o", str(tmp_path / "nodir" / "x.exr")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("hemisphere_local_pass: error:") and "does not exist" in err[0]
-    assert job.cli_main(["render", "-o", out, "--attribute", "nope"]) == 1
+    assert job.cli_main(["render", "-o", out, "--attribute", "nope", "--overwrite"]) == 1
     assert "has no attribute 'nope'" in capsys.readouterr().err
     # Ctrl-C during the run: exit 130, checkpoint kept, --resume finishes with the same file
     monkeypatch.setattr(job, "MIN_CHUNK", 8)
