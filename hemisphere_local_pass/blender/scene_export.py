@@ -413,47 +413,65 @@ def export_scene(
 
 
 def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_sided) -> ExportedScene:
-    parts: list = []
+    """One :class:`_Part` per render-visible geometry of ``depsgraph``, in the depsgraph's order.
+
+    ``depsgraph.object_instances`` yields, for an instance, a temporary object that Blender reuses
+    for the next instance: its ``type``, ``data``, material slots and matrix are valid during that
+    iteration step only (kept references later read the last instance's data, or garbage). So each
+    instance's mesh arrays, materials and matrix are copied inside the loop; only original IDs
+    (``ob.original``), which persist, are kept past it.
+    """
+    parts: list = []  # _Part, or (original object, matrix, pass index) for a to_mesh() after the loop
     cache: dict = {}
     counts: dict = {}
     mesh_parents = set()  # non-mesh objects whose evaluated geometry arrives as a MESH instance
-    entries = []
+    kw = dict(attribute=attribute, rho_attr=rho_attr, emit_attr=emit_attr, missing=missing, cache=cache)
     for inst in depsgraph.object_instances:
         ob = inst.object
-        if inst.is_instance:
-            parent = inst.parent
-            parent_name = parent.original.name if parent is not None else ob.original.name
-            if parent_name not in visible or ob.original.hide_render:
-                continue
-            if ob.type == "MESH" and ob.original.name == parent_name:
-                mesh_parents.add(parent_name)
-        elif ob.original.name not in visible:
-            continue
-        entries.append((ob, inst.is_instance, inst.parent.original.name if inst.is_instance and inst.parent else None,
-                        np.array(inst.matrix_world, dtype=np.float64)))
-    kw = dict(attribute=attribute, rho_attr=rho_attr, emit_attr=emit_attr, missing=missing, cache=cache)
-    for ob, is_instance, parent_name, matrix in entries:
-        if ob.type not in _GEOMETRY_TYPES:
-            continue  # lights, cameras, empties, ...
-        base = ob.original.name
+        original = ob.original
+        base = original.name
+        is_instance = inst.is_instance
+        parent_name = None
         if is_instance:
-            k = counts.get((base, parent_name), 0)
-            counts[(base, parent_name)] = k + 1
-            name = base if base == parent_name and k == 0 else f"{base} (instance {k} of {parent_name})"
-        else:
-            name = base
-        if ob.type == "MESH":
+            parent = inst.parent
+            parent_name = parent.original.name if parent is not None else base
+            if parent_name not in visible or original.hide_render:
+                continue
+        elif base not in visible:
+            continue
+        kind = ob.type
+        if kind not in _GEOMETRY_TYPES:
+            continue  # lights, cameras, empties, ...
+        matrix = np.array(inst.matrix_world, dtype=np.float64)
+        if kind == "MESH":
+            if is_instance:
+                if base == parent_name:
+                    mesh_parents.add(parent_name)
+                k = counts.get((base, parent_name), 0)
+                counts[(base, parent_name)] = k + 1
+                name = base if base == parent_name and k == 0 else f"{base} (instance {k} of {parent_name})"
+            else:
+                name = base
             key = (ob.data.as_pointer(), base)
             parts.append(_object_part(name, ob, ob.data, matrix, pass_index=ob.pass_index, cache_key=key, **kw))
-        elif not is_instance and base not in mesh_parents:
-            mesh = ob.to_mesh()  # curves, text, surfaces, metaballs -> mesh if they produce geometry
-            try:
-                if mesh is not None and len(mesh.polygons):
-                    parts.append(_object_part(name, ob, mesh, matrix, pass_index=ob.pass_index,
-                                              cache_key=("to_mesh", base), **kw))
-            finally:
-                ob.to_mesh_clear()
-    parts = [p for p in parts if p.arrays.n_polygons]
+        elif not is_instance:
+            parts.append((original, matrix, ob.pass_index))  # its evaluated object persists: convert later
+    for i, part in enumerate(parts):
+        if isinstance(part, _Part):
+            continue
+        original, matrix, pass_index = part
+        parts[i] = None
+        if original.name in mesh_parents:
+            continue  # its geometry came as the MESH instance above
+        ob = original.evaluated_get(depsgraph)
+        mesh = ob.to_mesh()  # curves, text, surfaces, metaballs -> mesh if they produce geometry
+        try:
+            if mesh is not None and len(mesh.polygons):
+                parts[i] = _object_part(original.name, ob, mesh, matrix, pass_index=pass_index,
+                                        cache_key=("to_mesh", original.name), **kw)
+        finally:
+            ob.to_mesh_clear()
+    parts = [p for p in parts if p is not None and p.arrays.n_polygons]
     if not parts:
         raise ValueError("the scene has no render-visible geometry (no mesh, curve or text object with polygons)")
     return _assemble(parts, double_sided)

@@ -214,3 +214,53 @@ def test_visibility_modifiers_instances_and_mirroring(hlp):
     rows = np.flatnonzero(np.isin(ex.scene.poly_source, np.flatnonzero(ex.polygon_object == i_m)))
     np.testing.assert_allclose(ex.scene.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
     assert ex.scene.poly_vertices[rows][..., 0].max() <= 0.0 and ex.scene.poly_vertices[rows][..., 2].min() == 2.0
+
+
+def _material(name, rho):
+    mat = bpy.data.materials.new(name)
+    mat.diffuse_color = (*rho, 1.0)
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = False  # the viewport colour is rho (5.0+: the default Principled BSDF's base colour)
+    else:
+        bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+        bsdf.inputs["Base Color"].default_value = (*rho, 1.0)
+    return mat
+
+
+def test_collection_instances_keep_every_object(hlp):
+    """Issue 14.13: a collection of three objects instanced four times (one mirrored) exports 12
+    objects, each with its own geometry, radiosity and material (the iterator's temporary object is
+    read inside the iteration, not after it)."""
+    src = bpy.data.collections.new("Src")
+    for k in range(3):
+        ob = quad_mesh(f"Part{k}", z=float(k), values=[(k + 1.0, 0.0, 0.0)])
+        bpy.context.scene.collection.objects.unlink(ob)
+        src.objects.link(ob)
+        ob.data.materials.append(_material(f"M{k}", (0.1 * (k + 1), 0.2, 0.3)))
+    for j in range(4):
+        inst = bpy.data.objects.new(f"Inst{j}", None)
+        inst.instance_type = "COLLECTION"
+        inst.instance_collection = src
+        inst.location = (5.0 * j, 0.0, 0.0)
+        if j == 2:
+            inst.scale = (-1.0, 1.0, 1.0)
+        bpy.context.scene.collection.objects.link(inst)
+    ex = export(hlp)
+    assert sorted(ex.objects) == sorted(f"Part{k} (instance 0 of Inst{j})" for j in range(4) for k in range(3))
+    sc = ex.scene
+    for j in range(4):
+        for k in range(3):
+            i = ex.objects.index(f"Part{k} (instance 0 of Inst{j})")
+            inputs = np.flatnonzero(ex.polygon_object == i)
+            assert len(inputs) == 2
+            rows = np.flatnonzero(np.isin(sc.poly_source, inputs))
+            v = sc.poly_vertices[rows]
+            np.testing.assert_allclose(v[..., 2], float(k))  # this part's own geometry
+            x = v[..., 0]
+            if j == 2:  # mirrored: x in [-2, 0] + 10, the front side still +z
+                assert x.min() == pytest.approx(10.0 - 2.0) and x.max() == pytest.approx(10.0)
+            else:
+                assert x.min() == pytest.approx(5.0 * j) and x.max() == pytest.approx(5.0 * j + 2.0)
+            np.testing.assert_allclose(sc.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
+            np.testing.assert_allclose(sc.poly_radiance[rows], [(k + 1.0, 0, 0)] * len(rows))
+            np.testing.assert_allclose(ex.reflectivity[inputs], [(0.1 * (k + 1), 0.2, 0.3)] * 2, rtol=1e-6)
