@@ -44,6 +44,11 @@ DEFAULT_REFLECTIVITY = (0.8, 0.8, 0.8)
 #: Emission (W sr^-1 m^-2, added to the reflected radiance) of such a surface.
 DEFAULT_EMISSION = (0.0, 0.0, 0.0)
 
+#: Largest |coordinate| (scene units) accepted for a vertex, in object and in world space. Blender stores
+#: an infinite coordinate as 3.4e38 (FLT_MAX); its float32 positions are spaced by more than 6e7 units
+#: beyond 1e15, so nothing modelled lies there: such a vertex is an error, not a polygon to drop.
+MAX_COORDINATE = 1e15
+
 #: Attribute data types accepted for the radiosity, and the RNA property holding their value.
 _VALUE_PROP = {"FLOAT_COLOR": ("color", 4), "BYTE_COLOR": ("color", 4), "FLOAT_VECTOR": ("vector", 3)}
 _GREY_TYPES = {"FLOAT": ("value", 1)}
@@ -331,11 +336,39 @@ def _reverse_corners(arrays: MeshArrays) -> np.ndarray:
     return arrays.loop_start[poly] + np.where(j == 0, 0, total - j)
 
 
+def _check_vertices(name, ob, arrays: MeshArrays, world=None):
+    """Raise ``ValueError`` for a non-finite or absurdly large (> :data:`MAX_COORDINATE`) coordinate
+    of a vertex some polygon uses, naming the object, the vertex's index in its own (evaluated) mesh
+    and all three coordinates. With ``world`` (the same vertices in world space) that is checked instead.
+    Returns the (V,) bool mask of the vertices some polygon uses (loose vertices are not rendered)."""
+    used = np.zeros(len(arrays.vertices), dtype=bool)
+    used[arrays.loop_vertices] = True
+    for space, co in [("", arrays.vertices)] if world is None else [(" in world space", world)]:
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(used & ~(np.abs(co) <= MAX_COORDINATE).all(axis=1))
+        if not len(bad):
+            continue
+        v = int(bad[0])
+        values = ", ".join(repr(float(c)) for c in co[v])
+        finite = bool(np.isfinite(co[v]).all())
+        what = f"coordinates beyond {MAX_COORDINATE:g}" if finite else "non-finite coordinates"
+        if finite and np.abs(co[v]).max() >= 3.4e38:
+            what += " (Blender stores an infinite coordinate as 3.4e38)"
+        local = "" if not space else " (object space: (" + ", ".join(repr(float(c)) for c in arrays.vertices[v]) + "))"
+        original = getattr(ob, "original", ob)
+        derived = original.type != "MESH" or any(m.show_viewport for m in original.modifiers)
+        index = f"vertex {v}" + (" of its evaluated mesh (after modifiers)" if derived else "")
+        more = f" (and {len(bad) - 1} more vertices)" if len(bad) > 1 else ""
+        raise ValueError(f"object '{name}': {index} has {what}: ({values}){space}{local}{more}")
+    return used
+
+
 def _object_part(name, ob, mesh, matrix, *, attribute, rho_attr, emit_attr, missing, pass_index, cache_key, cache):
     """Extract one evaluated mesh (cached per mesh datablock) and place it in world space."""
     local = cache.get(cache_key)
     if local is None:
         arrays = mesh_arrays(mesh)
+        _check_vertices(name, ob, arrays)
         radiance = read_attribute(mesh, arrays, attribute, name)
         rho_vals = read_attribute(mesh, arrays, rho_attr, name, allow_grey=True) if rho_attr else None
         emit_vals = read_attribute(mesh, arrays, emit_attr, name, allow_grey=True) if emit_attr else None
@@ -356,6 +389,9 @@ def _object_part(name, ob, mesh, matrix, *, attribute, rho_attr, emit_attr, miss
                          f"add it, or choose missing=\"black\" to treat the object as a black occluder")
     m = np.asarray(matrix, dtype=np.float64).reshape(4, 4)
     world = arrays.vertices @ m[:3, :3].T + m[:3, 3]
+    used = _check_vertices(name, ob, arrays, world)
+    if not used.all():
+        world[~used] = 0.0  # loose vertices are not rendered; whatever they hold must not reach the core
     loops = arrays.loop_vertices
     if np.linalg.det(m[:3, :3]) < 0:  # mirrored: keep Blender's front side
         perm = _reverse_corners(arrays)

@@ -264,3 +264,28 @@ def test_collection_instances_keep_every_object(hlp):
             np.testing.assert_allclose(sc.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
             np.testing.assert_allclose(sc.poly_radiance[rows], [(k + 1.0, 0, 0)] * len(rows))
             np.testing.assert_allclose(ex.reflectivity[inputs], [(0.1 * (k + 1), 0.2, 0.3)] * 2, rtol=1e-6)
+
+
+def test_bad_vertex_coordinates_name_the_object_and_its_own_vertex(hlp):
+    """Issue 14.8: an infinite (stored as 3.4e38), NaN or absurdly large coordinate is an error naming
+    the object and the vertex's index in that object (not across the scene), with all three values."""
+    quad_mesh("Floor", values=[(1, 1, 1)])  # six vertices before TallBlock's
+    ob = quad_mesh("TallBlock", z=1.0, values=[(1, 1, 1)])
+    ob.data.vertices[2].co = (float("inf"), 1.0, 1.0)
+    assert ob.data.vertices[2].co.x == pytest.approx(3.4028234663852886e38)  # how Blender stores it
+    with pytest.raises(ValueError, match=r"object 'TallBlock': vertex 2 has coordinates beyond 1e\+15 .*"
+                                         r"\(3\.40282346\d*e\+38, 1\.0, 1\.0\)"):
+        export(hlp)
+    ob.data.vertices[2].co = (float("nan"), 1.0, 1.0)  # only x NaN: all three shown
+    with pytest.raises(ValueError, match=r"object 'TallBlock': vertex 2 has non-finite coordinates: "
+                                         r"\(nan, 1\.0, 1\.0\)"):
+        export(hlp)
+    ob.data.vertices[2].co = (1.0, 1.0, 1.0)
+    ob.scale = (1e16, 1.0, 1.0)  # finite in the mesh, absurd in world space
+    with pytest.raises(ValueError, match=r"object 'TallBlock': vertex 1 has coordinates beyond .* in world space "
+                                         r"\(object space: \(1\.0, 0\.0, 1\.0\)\)"):
+        export(hlp)
+    ob.scale = (1.0, 1.0, 1.0)
+    ob.data.vertices.add(1)  # a loose vertex is not rendered: it may be anything
+    ob.data.vertices[6].co = (float("nan"), 0.0, 0.0)
+    assert export(hlp).scene.n_input == 4
