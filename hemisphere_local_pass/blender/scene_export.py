@@ -66,6 +66,8 @@ class MeshArrays:
         loop_start, loop_total: (P,) int64 first corner / corner count per polygon.
         material_index: (P,) int64.
         use_smooth: (P,) bool.
+        tri_loops: (T, 3) int64 corners of Blender's own triangulation (``Mesh.loop_triangles``: the
+            triangles Cycles and EEVEE render, wound like their polygon); tri_polygon: (T,) int64.
     """
 
     vertices: np.ndarray
@@ -74,6 +76,8 @@ class MeshArrays:
     loop_total: np.ndarray
     material_index: np.ndarray
     use_smooth: np.ndarray
+    tri_loops: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
+    tri_polygon: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n_polygons(self) -> int:
@@ -99,7 +103,14 @@ def mesh_arrays(mesh) -> MeshArrays:
     smooth = np.zeros(npoly, dtype=bool)
     if npoly:
         mesh.polygons.foreach_get("use_smooth", smooth)
-    return MeshArrays(verts, loops, start, total, mat, smooth)
+    tris = mesh.loop_triangles
+    if npoly and not len(tris) and hasattr(mesh, "calc_loop_triangles"):
+        mesh.calc_loop_triangles()  # Blender < 4.0 computes them on request only
+        tris = mesh.loop_triangles
+    nt = len(tris)
+    tri_loops = _get(tris, "loops", nt, 3, np.int32).astype(np.int64).reshape(nt, 3)
+    tri_polygon = _get(tris, "polygon_index", nt, 1, np.int32).astype(np.int64)
+    return MeshArrays(verts, loops, start, total, mat, smooth, tri_loops, tri_polygon)
 
 
 def polygon_of_corner(arrays: MeshArrays) -> np.ndarray:
@@ -393,12 +404,16 @@ def _object_part(name, ob, mesh, matrix, *, attribute, rho_attr, emit_attr, miss
     if not used.all():
         world[~used] = 0.0  # loose vertices are not rendered; whatever they hold must not reach the core
     loops = arrays.loop_vertices
+    tri_loops = arrays.tri_loops
     if np.linalg.det(m[:3, :3]) < 0:  # mirrored: keep Blender's front side
         perm = _reverse_corners(arrays)
         loops = loops[perm]
         if radiance is not None and radiance[0] == "CORNER":
             radiance = ("CORNER", radiance[1][perm])
-    placed = MeshArrays(world, loops, arrays.loop_start, arrays.loop_total, arrays.material_index, arrays.use_smooth)
+        inverse = np.argsort(perm)  # new position of every old corner
+        tri_loops = inverse[tri_loops[:, ::-1]]  # the same triangles, reversed like their polygons
+    placed = MeshArrays(world, loops, arrays.loop_start, arrays.loop_total, arrays.material_index, arrays.use_smooth,
+                        tri_loops, arrays.tri_polygon)
     return _Part(name, pass_index, placed, radiance, rho, emit)
 
 
@@ -521,6 +536,9 @@ def _assemble(parts, double_sided) -> ExportedScene:
     loops = np.concatenate([p.arrays.loop_vertices + n_v[i] for i, p in enumerate(parts)])
     starts = np.concatenate([p.arrays.loop_start + n_l[i] for i, p in enumerate(parts)])
     totals = np.concatenate([p.arrays.loop_total for p in parts])
+    n_p = np.cumsum([0] + [p.arrays.n_polygons for p in parts])
+    tri_loops = np.concatenate([p.arrays.tri_loops + n_l[i] for i, p in enumerate(parts)])
+    tri_polygon = np.concatenate([p.arrays.tri_polygon + n_p[i] for i, p in enumerate(parts)])
     linear = any(p.radiance is not None and p.radiance[0] != "FACE" for p in parts)
     if linear:
         corner = np.concatenate([
@@ -537,8 +555,11 @@ def _assemble(parts, double_sided) -> ExportedScene:
     polygon_object = np.concatenate([np.full(p.arrays.n_polygons, i, dtype=np.int64) for i, p in enumerate(parts)])
     polygon_index = np.concatenate([np.arange(p.arrays.n_polygons, dtype=np.int64) for p in parts])
     names = _PolygonNames(objects, polygon_object, polygon_index)
+    # wherever the core would split a polygon (linear radiance; concave or non-planar n-gons) it takes
+    # Blender's own triangles: the surface and the interpolated radiance Blender renders
     core_scene = Scene.from_arrays(verts, loops, starts, totals, poly_rad, corner,
-                                   double_sided=double_sided, polygon_names=names)
+                                   double_sided=double_sided, polygon_names=names,
+                                   loop_triangles=tri_loops, loop_triangle_polygons=tri_polygon)
     return ExportedScene(
         scene=core_scene,
         reflectivity=np.concatenate([p.rho for p in parts]),

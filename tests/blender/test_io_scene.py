@@ -289,3 +289,90 @@ def test_bad_vertex_coordinates_name_the_object_and_its_own_vertex(hlp):
     ob.data.vertices.add(1)  # a loose vertex is not rendered: it may be anything
     ob.data.vertices[6].co = (float("nan"), 0.0, 0.0)
     assert export(hlp).scene.n_input == 4
+
+
+def ngon_mesh(name, domain="CORNER", concave=False, values=None):
+    """One hexagon (or a concave L-shaped hexagon) in z = 0 with a non-affine attribute."""
+    if concave:
+        verts = [(0, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0), (1, 2, 0), (0, 2, 0)]
+    else:
+        verts = [(np.cos(a), np.sin(a), 0.0) for a in np.arange(6) * np.pi / 3]
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(verts, [], [tuple(range(6))])
+    me.update()
+    a = me.attributes.new("radiosity", "FLOAT_COLOR", domain)
+    n = len(a.data)
+    vals = np.asarray(values if values is not None else [(0.0, 0, 0), (1, 1, 1), (0, 0, 0), (5, 5, 5),
+                                                         (0, 0, 0), (1, 1, 1)][:n], dtype=np.float32)
+    vals = np.broadcast_to(vals, (n, 3))
+    a.data.foreach_set("color", np.concatenate([vals, np.ones((n, 1), np.float32)], axis=1).reshape(-1))
+    ob = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def blender_triangles(ob):
+    """Blender's loop triangles of the evaluated ``ob`` in world space: {sorted vertex triple}, and
+    the corner (loop) indices of each."""
+    ev = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.data
+    if not len(me.loop_triangles) and hasattr(me, "calc_loop_triangles"):
+        me.calc_loop_triangles()
+    m = np.array(ev.matrix_world)
+    co = np.array([tuple(v.co) for v in me.vertices]) @ m[:3, :3].T + m[:3, 3]
+    loops = [tuple(t.loops) for t in me.loop_triangles]
+    lv = np.array([lp.vertex_index for lp in me.loops])
+    return {tuple(sorted(map(tuple, np.round(co[lv[list(t)]], 9)))) for t in loops}, loops
+
+
+def exported_triangles(ex, obname):
+    i = ex.objects.index(obname)
+    rows = np.flatnonzero(np.isin(ex.scene.poly_source, np.flatnonzero(ex.polygon_object == i)))
+    return rows, {tuple(sorted(map(tuple, np.round(v[:3], 9)))) for v in ex.scene.poly_vertices[rows]}
+
+
+@pytest.mark.parametrize("domain", ["POINT", "CORNER"])
+def test_linear_ngons_are_split_into_blenders_loop_triangles(hlp, domain):
+    """Issue 14.14: POINT/CORNER radiosity on n-gons is interpolated over Blender's loop triangles
+    (for a hexagon (5,0,1),(1,2,3),(3,4,5),(1,3,5), not the core's fan from corner 0), a concave
+    n-gon included, a mirrored copy too; polygons are still named by the object's polygon index."""
+    hexa = ngon_mesh("Hexagon", domain)
+    ell = ngon_mesh("Ell", domain, concave=True)
+    ell.location = (3.0, 0.0, 0.0)
+    mirror = ngon_mesh("MirroredEll", domain, concave=True)
+    mirror.location, mirror.scale = (8.0, 0.0, 0.0), (-1.0, 1.0, 1.0)
+    ex = export(hlp)
+    assert ex.linear
+    for ob in (hexa, ell, mirror):
+        want, loops = blender_triangles(ob)
+        rows, got = exported_triangles(ex, ob.name)
+        assert got == want, ob.name
+        np.testing.assert_allclose(ex.scene.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
+        assert {ex.polygon_name(int(s)) for s in ex.scene.poly_source[rows]} == {f"{ob.name}.polygon 0"}
+    _, loops = blender_triangles(hexa)
+    assert sorted(loops) == sorted([(5, 0, 1), (1, 2, 3), (3, 4, 5), (1, 3, 5)])
+    rows, _ = exported_triangles(ex, "Hexagon")
+    corner = np.array([0.0, 1, 0, 5, 0, 1])
+    got = {tuple(sorted(r)) for r in ex.scene.corner_radiance[rows][..., 0]}
+    assert got == {tuple(sorted(corner[list(t)])) for t in loops}
+
+
+def test_face_ngons_concave_split_like_blender_convex_whole(hlp):
+    """FACE values: a planar convex n-gon stays one polygon; a concave one and a non-planar quad are
+    split into Blender's loop triangles (for the quad a different diagonal than ear clipping's:
+    a different surface)."""
+    ngon_mesh("Hexagon", "FACE", values=[(1.0, 1.0, 1.0)])
+    ell = ngon_mesh("Ell", "FACE", concave=True, values=[(2.0, 2.0, 2.0)])
+    ell.location = (3.0, 0.0, 0.0)
+    bent = quad_mesh("Bent", values=[(1.0, 1.0, 1.0)])
+    bent.location = (0.0, 4.0, 0.0)
+    bent.data.vertices[2].co.z = 0.3  # corner 2 of polygon 0 (and corner 3 of polygon 1) lifted
+    ex = export(hlp)
+    assert not ex.linear
+    rows, _ = exported_triangles(ex, "Hexagon")
+    assert len(rows) == 1 and ex.scene.poly_counts[rows[0]] == 6  # planar convex: one polygon
+    for ob in (ell, bent):
+        want, _ = blender_triangles(ob)
+        rows, got = exported_triangles(ex, ob.name)
+        assert got == want, ob.name
+    assert ex.dropped_names() == []
