@@ -427,6 +427,7 @@ def export_scene(
     emission_attribute: str = "emission",
     missing: str = "error",
     double_sided: bool = False,
+    status=None,
 ) -> ExportedScene:
     """Build the core Scene from every render-visible object of ``scene`` (default: the context's).
 
@@ -440,6 +441,8 @@ def export_scene(
             (empty string: use the material only).
         missing: ``"error"`` (default) or ``"black"``: what to do with objects lacking ``attribute``.
         double_sided: polygons emit from both sides.
+        status: optional ``status(text)``, told what the export is doing as it goes (the depsgraph
+            evaluation, then objects and polygons read so far, then building the core scene).
 
     Raises:
         ValueError: missing/invalid attribute (naming object and attribute), empty scene.
@@ -454,16 +457,18 @@ def export_scene(
         ctx_layer = getattr(bpy.context, "view_layer", None)
         view_layer = ctx_layer if ctx_layer is not None and ctx_layer.id_data == scene else scene.view_layers[0]
     visible = render_visible_objects(view_layer)
+    say = status if status is not None else (lambda text: None)
+    args = (visible, attribute, reflectivity_attribute, emission_attribute, missing, double_sided, say)
     if depsgraph is None:
         with _ShowHiddenInViewport(view_layer, visible):
+            say(f"exporting the scene: evaluating {len(visible)} objects (modifiers, instances)")
             depsgraph = view_layer.depsgraph
             depsgraph.update()
-            return _export(depsgraph, visible, attribute, reflectivity_attribute, emission_attribute, missing,
-                           double_sided)
-    return _export(depsgraph, visible, attribute, reflectivity_attribute, emission_attribute, missing, double_sided)
+            return _export(depsgraph, *args)
+    return _export(depsgraph, *args)
 
 
-def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_sided) -> ExportedScene:
+def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_sided, say) -> ExportedScene:
     """One :class:`_Part` per render-visible geometry of ``depsgraph``, in the depsgraph's order.
 
     ``depsgraph.object_instances`` yields, for an instance, a temporary object that Blender reuses
@@ -477,6 +482,8 @@ def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_
     counts: dict = {}
     mesh_parents = set()  # non-mesh objects whose evaluated geometry arrives as a MESH instance
     kw = dict(attribute=attribute, rho_attr=rho_attr, emit_attr=emit_attr, missing=missing, cache=cache)
+    n_read = 0
+    say("exporting the scene: reading meshes")
     for inst in depsgraph.object_instances:
         ob = inst.object
         original = ob.original
@@ -505,6 +512,8 @@ def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_
                 name = base
             key = (ob.data.as_pointer(), base)
             parts.append(_object_part(name, ob, ob.data, matrix, pass_index=ob.pass_index, cache_key=key, **kw))
+            n_read += parts[-1].arrays.n_polygons
+            say(f"exporting the scene: {len(parts)} objects, {n_read} polygons read")
         elif not is_instance:
             parts.append((original, matrix, ob.pass_index))  # its evaluated object persists: convert later
     for i, part in enumerate(parts):
@@ -525,6 +534,8 @@ def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_
     parts = [p for p in parts if p is not None and p.arrays.n_polygons]
     if not parts:
         raise ValueError("the scene has no render-visible geometry (no mesh, curve or text object with polygons)")
+    say(f"exporting the scene: {len(parts)} objects; building the scene of "
+        f"{sum(p.arrays.n_polygons for p in parts)} polygons")
     return _assemble(parts, double_sided)
 
 
