@@ -269,6 +269,7 @@ class _ShowHiddenInViewport:
                 walk(child)
 
         walk(self.view_layer.layer_collection)
+        self._instanced_as_rendered(bpy)
         for name in self.names:
             ob = bpy.data.objects.get(name)
             if ob is None:
@@ -284,6 +285,23 @@ class _ShowHiddenInViewport:
                 self.undo.append((ob, "hide_set", True))
                 ob.hide_set(False, view_layer=self.view_layer)
         return self
+
+    def _instanced_as_rendered(self, bpy):
+        """Collections instanced by objects (nested too): the viewport depsgraph instances what their
+        viewport flags show, a render what their render flags show; make the former the latter."""
+        stack = [ob.instance_collection for ob in bpy.data.objects if ob.instance_type == "COLLECTION"]
+        seen = set()
+        while stack:
+            col = stack.pop()
+            if col is None or col.as_pointer() in seen:
+                continue
+            seen.add(col.as_pointer())
+            for target in (col, *col.objects):
+                if target.hide_viewport != target.hide_render:
+                    self.undo.append((target, "hide_viewport", target.hide_viewport))
+                    target.hide_viewport = target.hide_render
+            stack.extend(ob.instance_collection for ob in col.objects if ob.instance_type == "COLLECTION")
+            stack.extend(col.children)
 
     def __exit__(self, *exc):
         for target, what, value in reversed(self.undo):

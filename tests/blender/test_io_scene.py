@@ -376,3 +376,30 @@ def test_face_ngons_concave_split_like_blender_convex_whole(hlp):
         rows, got = exported_triangles(ex, ob.name)
         assert got == want, ob.name
     assert ex.dropped_names() == []
+
+
+def test_instanced_collections_follow_render_visibility(hlp):
+    """Inside an instanced collection the render flags decide, as in a render: an object or child
+    collection hidden in viewports only is instanced, one disabled in renders is not; the viewport
+    flags are restored."""
+    src = bpy.data.collections.new("Src")
+    child_vp = bpy.data.collections.new("ChildHiddenInViewport")
+    child_rn = bpy.data.collections.new("ChildNoRender")
+    src.children.link(child_vp)
+    src.children.link(child_rn)
+    for k, (name, col) in enumerate([("Shown", src), ("ViewportOff", src), ("RenderOff", src),
+                                     ("InChildVp", child_vp), ("InChildNoRender", child_rn)]):
+        ob = quad_mesh(name, z=float(k), values=[(1, 1, 1)])
+        bpy.context.scene.collection.objects.unlink(ob)
+        col.objects.link(ob)
+    src.objects["ViewportOff"].hide_viewport = True
+    src.objects["RenderOff"].hide_render = True
+    child_vp.hide_viewport = True
+    child_rn.hide_render = True
+    inst = bpy.data.objects.new("Inst", None)
+    inst.instance_type = "COLLECTION"
+    inst.instance_collection = src
+    bpy.context.scene.collection.objects.link(inst)
+    ex = export(hlp)
+    assert sorted(ex.objects) == sorted(f"{n} (instance 0 of Inst)" for n in ("Shown", "ViewportOff", "InChildVp"))
+    assert src.objects["ViewportOff"].hide_viewport and child_vp.hide_viewport and not child_rn.hide_viewport
