@@ -398,6 +398,8 @@ def test_cycles_agrees_on_instances_modifiers_ngons_and_cameras(extension, scene
 
     # the noise scale from the exported scene (its radiance squared), at the job's own hit points
     ex = export.export_scene(sc, double_sided=True)
+    n_poly = {name: int(np.sum(ex.polygon_object == i)) for i, name in enumerate(ex.objects)}
+    assert (n_poly["Bars"], n_poly["Wedge"], n_poly["Plate"]) == (18, 8, 6)  # Array x3, Mirror x2, Solidify
     ref = ex.scene
     sq = core.Scene(ref.poly_vertices, ref.poly_counts, ref.poly_source, ref.poly_radiance ** 2, ref.n_input,
                     corner_radiance=None if ref.corner_radiance is None else ref.corner_radiance ** 2,
