@@ -92,8 +92,9 @@ def _get(collection, prop: str, count: int, width: int, dtype) -> np.ndarray:
     return out.reshape(count, width) if width > 1 else out
 
 
-def mesh_arrays(mesh) -> MeshArrays:
-    """Pull the geometry of ``mesh`` (a ``bpy.types.Mesh``) into numpy arrays (object space)."""
+def mesh_arrays(mesh, *, triangles: bool = False) -> MeshArrays:
+    """Pull the geometry of ``mesh`` (a ``bpy.types.Mesh``) into numpy arrays (object space);
+    with ``triangles`` its loop triangles too (else ``tri_loops`` / ``tri_polygon`` are empty)."""
     nv, nl, npoly = len(mesh.vertices), len(mesh.loops), len(mesh.polygons)
     verts = _get(mesh.vertices, "co", nv, 3, np.float32).astype(np.float64)
     loops = _get(mesh.loops, "vertex_index", nl, 1, np.int32).astype(np.int64)
@@ -103,6 +104,8 @@ def mesh_arrays(mesh) -> MeshArrays:
     smooth = np.zeros(npoly, dtype=bool)
     if npoly:
         mesh.polygons.foreach_get("use_smooth", smooth)
+    if not triangles:
+        return MeshArrays(verts, loops, start, total, mat, smooth)
     tris = mesh.loop_triangles
     if npoly and not len(tris) and hasattr(mesh, "calc_loop_triangles"):
         mesh.calc_loop_triangles()  # Blender < 4.0 computes them on request only
@@ -396,7 +399,7 @@ def _object_part(name, ob, mesh, matrix, *, attribute, rho_attr, emit_attr, miss
     """Extract one evaluated mesh (cached per mesh datablock) and place it in world space."""
     local = cache.get(cache_key)
     if local is None:
-        arrays = mesh_arrays(mesh)
+        arrays = mesh_arrays(mesh, triangles=True)
         _check_vertices(name, ob, arrays)
         radiance = read_attribute(mesh, arrays, attribute, name)
         rho_vals = read_attribute(mesh, arrays, rho_attr, name, allow_grey=True) if rho_attr else None
