@@ -28,6 +28,7 @@ import math
 import os
 import shutil
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -180,6 +181,41 @@ class _Progress:
             self.callback(self.base, self.total)
 
 
+class _Reporter:
+    """The job's ``progress(done, total)`` for the receivers plus ``stage(text)`` for the steps before
+    them (export, ray casting, preparation), which take a minute on a 200,000-polygon scene; either
+    callback may be None. ``stage(None)``: the job is over."""
+
+    def __init__(self, progress, status):
+        self.progress = progress
+        self.status = status
+
+    def __call__(self, done, total):
+        if self.progress is not None:
+            self.progress(done, total)
+
+    def stage(self, text):
+        if self.status is not None:
+            self.status(text)
+
+
+def _stage(progress, text):
+    """Tell the job's status callback (if any) that a stage begins: ``text`` (None: the job is over)."""
+    stage = getattr(progress, "stage", None)
+    if stage is not None:
+        stage(text)
+
+
+def _prepare(exported, points, normals, limit, progress, cancel):
+    """Build the core's per-scene structures (occluders, tiles: done once, lazily, by the first core
+    call) as a stage of its own, so the job says what it is doing before the first chunk: evaluate
+    one receiver and discard it (the structures do not depend on the receivers; results are the
+    same bit for bit)."""
+    sc = exported.scene
+    _stage(progress, f"preparing the scene for the exact projection ({sc.n_polygons} convex polygons)")
+    _evaluate(exported, points[:1], normals[:1], None if limit is None else limit[:1], None, cancel)
+
+
 def _evaluate(exported, points, normals, limit, progress, cancel):
     """H (m, 3) and sum F (m,) at the receivers.
 
@@ -290,6 +326,11 @@ def _compute(exported, points, normals, limit, *, checkpoint_path, fingerprint, 
         report.resumed_points = int(sum(min(chunk, m - c * chunk) for c in np.flatnonzero(ck.done)))
     prog = _Progress(progress, m, report.resumed_points)
     try:
+        todo = np.flatnonzero(~ck.done)
+        if len(todo):
+            s0 = int(todo[0]) * chunk
+            _prepare(exported, points[s0:], normals[s0:], None if limit is None else limit[s0:], progress, cancel)
+            _stage(progress, f"computing {m - report.resumed_points} points")
         for c in range(len(ck.done)):
             if ck.done[c]:
                 continue
@@ -325,6 +366,7 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
     k2 = sx.shape[1]
     origins, directions, t0, t1 = hcam.camera_rays(params, sx, sy)
     core_scene = exported.scene
+    _stage(progress, f"casting {len(origins)} camera rays ({core_scene.n_polygons} convex polygons)")
     hits = cast_rays(core_scene, origins, directions, t_min=t0, t_max=t1)
     hit = hits.hit
     poly = hits.polygon[hit]
@@ -604,6 +646,7 @@ def run_local_pass(
     missing=None,
     progress=None,
     cancel=None,
+    status=None,
     reflectivity_attribute=None,
     emission_attribute=None,
     double_sided=None,
@@ -636,6 +679,9 @@ def run_local_pass(
         samples: k for k x k rays per pixel.
         missing: "error" or "black" (objects without the attribute become black occluders).
         progress: ``progress(done, total)`` receivers; cancel: ``cancel() -> bool``.
+        status: ``status(text)`` when a stage begins or moves on ("exporting the scene: 3 objects,
+            1,200 polygons read", "casting 4,096 camera rays", "preparing the scene ...", "computing
+            4,096 points"), from the job's first moment on; ``status(None)`` when the job ends.
         radiance_attribute, irradiance_attribute: vertices mode targets (default ``hlp_radiance``,
             ``hlp_irradiance``); an existing attribute of that name is overwritten only if it was
             made by this extension or is named here explicitly.
@@ -707,8 +753,18 @@ def run_local_pass(
 
     from .scene_export import export_scene
 
-    exported = export_scene(scene, view_layer=view_layer, attribute=attribute, reflectivity_attribute=rho_attr,
-                            emission_attribute=emit_attr, missing=missing, double_sided=double_sided)
+    progress = _Reporter(progress, status)
+    _stage(progress, "exporting the scene")
+    try:
+        exported = export_scene(scene, view_layer=view_layer, attribute=attribute, reflectivity_attribute=rho_attr,
+                                emission_attribute=emit_attr, missing=missing, double_sided=double_sided,
+                                status=progress.stage)
+    except BaseException:
+        _stage(progress, None)
+        raise
+    sc = exported.scene
+    _stage(progress, f"exported {len(exported.objects)} objects, {sc.n_input} polygons ({sc.n_polygons} convex) "
+                     f"in {time.perf_counter() - start:.1f} s")
     report = JobReport(mode=mode, black_occluders=list(exported.black_occluders),
                        dropped_polygons=exported.dropped_names(), objects=list(exported.objects), refused=refused)
     try:
@@ -726,12 +782,16 @@ def run_local_pass(
                           resume=resume, progress=progress, cancel=cancel, explicit_targets=explicit, objects=objects)
     finally:
         report.seconds = time.perf_counter() - start
+        _stage(progress, None)
     return report
 
 
 # ------------------------------------------------------------------------------------------- CLI
 class _StderrProgress:
-    """Percent, points/s and ETA on stderr, at most every ``interval`` seconds (and at the end)."""
+    """Percent, points/s and ETA on stderr, at most every ``interval`` seconds (and at the end);
+    before the points, the job's stages (``stage(text)``), and while nothing else is printed a line
+    every ``interval`` seconds saying what is running and for how long (from a daemon thread, stopped
+    by ``stage(None)``), so a long export or preparation is never silent."""
 
     def __init__(self, stream=None, interval=1.0):
         self.stream = stream if stream is not None else sys.stderr
@@ -739,6 +799,45 @@ class _StderrProgress:
         self.start = None
         self.first = None
         self.last = 0.0
+        self.text = None
+        self.since = 0.0
+        self.lock = threading.Lock()
+        self.stop = None
+
+    def _write(self, line):
+        with self.lock:
+            self.last = time.perf_counter()
+            self.stream.write(f"hemisphere_local_pass: {line}\n")
+            self.stream.flush()
+
+    def stage(self, text):
+        """A stage begins (None: the job is over)."""
+        if text is None:
+            if self.stop is not None:
+                self.stop.set()
+                self.stop = None
+            self.text = None
+            return
+        now = time.perf_counter()
+        head = text.split(":")[0]  # "exporting the scene: 3 objects ..." moves on within one stage
+        if self.text is None or head != self.text.split(":")[0]:
+            self.text, self.since = text, now
+            self._write(text)
+        else:
+            self.text = text  # printed now if a line is due, else by the heartbeat
+            if now - self.last >= self.interval:
+                self._write(f"{text} ({now - self.since:.0f} s)")
+        if self.stop is None:
+            self.stop = threading.Event()
+            threading.Thread(target=self._heartbeat, args=(self.stop,), daemon=True,
+                             name="hlp-progress").start()
+
+    def _heartbeat(self, stop):
+        while not stop.wait(self.interval / 4):
+            now = time.perf_counter()
+            text = self.text
+            if text is not None and now - self.last >= self.interval:
+                self._write(f"{text} ({now - self.since:.0f} s)")
 
     def __call__(self, done, total):
         now = time.perf_counter()
@@ -746,14 +845,13 @@ class _StderrProgress:
             self.start, self.first = now, done
         if now - self.last < self.interval and done < total:
             return
-        self.last = now
         rate = (done - self.first) / (now - self.start) if now > self.start else 0.0
         eta = (total - done) / rate if rate > 0 else float("nan")
         pct = 100.0 * done / total if total else 100.0
         eta_s = f"{eta:.0f} s" if math.isfinite(eta) else "?"
-        self.stream.write(f"hemisphere_local_pass: {pct:5.1f}% {done}/{total} points, {rate:.0f} points/s, "
-                          f"ETA {eta_s}\n")
-        self.stream.flush()
+        line = f"{pct:5.1f}% {done}/{total} points, {rate:.0f} points/s, ETA {eta_s}"
+        self.text, self.since = line, now
+        self._write(line)
 
 
 def _region(values):
@@ -878,10 +976,11 @@ def cli_main(argv) -> int:
         from .output_paths import checkpoint_path, resolve
 
         checkpoint = checkpoint_path(resolve(output))
+        reporter = None if args.quiet else _StderrProgress()
         report = run_local_pass(
             output=output, mode=mode, attribute=args.attribute, region=_region(args.region),
             tile=args.tile, resume=args.resume, samples=args.samples, missing=args.missing,
-            progress=None if args.quiet else _StderrProgress(), preview=not args.no_preview,
+            progress=reporter, status=None if reporter is None else reporter.stage, preview=not args.no_preview,
             overwrite=args.overwrite, objects=args.objects, radiance_attribute=args.radiance_attribute,
             irradiance_attribute=args.irradiance_attribute,
         )

@@ -44,6 +44,11 @@ DEFAULT_REFLECTIVITY = (0.8, 0.8, 0.8)
 #: Emission (W sr^-1 m^-2, added to the reflected radiance) of such a surface.
 DEFAULT_EMISSION = (0.0, 0.0, 0.0)
 
+#: Largest |coordinate| (scene units) accepted for a vertex, in object and in world space. Blender stores
+#: an infinite coordinate as 3.4e38 (FLT_MAX); its float32 positions are spaced by more than 6e7 units
+#: beyond 1e15, so nothing modelled lies there: such a vertex is an error, not a polygon to drop.
+MAX_COORDINATE = 1e15
+
 #: Attribute data types accepted for the radiosity, and the RNA property holding their value.
 _VALUE_PROP = {"FLOAT_COLOR": ("color", 4), "BYTE_COLOR": ("color", 4), "FLOAT_VECTOR": ("vector", 3)}
 _GREY_TYPES = {"FLOAT": ("value", 1)}
@@ -61,6 +66,8 @@ class MeshArrays:
         loop_start, loop_total: (P,) int64 first corner / corner count per polygon.
         material_index: (P,) int64.
         use_smooth: (P,) bool.
+        tri_loops: (T, 3) int64 corners of Blender's own triangulation (``Mesh.loop_triangles``: the
+            triangles Cycles and EEVEE render, wound like their polygon); tri_polygon: (T,) int64.
     """
 
     vertices: np.ndarray
@@ -69,6 +76,8 @@ class MeshArrays:
     loop_total: np.ndarray
     material_index: np.ndarray
     use_smooth: np.ndarray
+    tri_loops: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
+    tri_polygon: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n_polygons(self) -> int:
@@ -83,8 +92,9 @@ def _get(collection, prop: str, count: int, width: int, dtype) -> np.ndarray:
     return out.reshape(count, width) if width > 1 else out
 
 
-def mesh_arrays(mesh) -> MeshArrays:
-    """Pull the geometry of ``mesh`` (a ``bpy.types.Mesh``) into numpy arrays (object space)."""
+def mesh_arrays(mesh, *, triangles: bool = False) -> MeshArrays:
+    """Pull the geometry of ``mesh`` (a ``bpy.types.Mesh``) into numpy arrays (object space);
+    with ``triangles`` its loop triangles too (else ``tri_loops`` / ``tri_polygon`` are empty)."""
     nv, nl, npoly = len(mesh.vertices), len(mesh.loops), len(mesh.polygons)
     verts = _get(mesh.vertices, "co", nv, 3, np.float32).astype(np.float64)
     loops = _get(mesh.loops, "vertex_index", nl, 1, np.int32).astype(np.int64)
@@ -94,7 +104,16 @@ def mesh_arrays(mesh) -> MeshArrays:
     smooth = np.zeros(npoly, dtype=bool)
     if npoly:
         mesh.polygons.foreach_get("use_smooth", smooth)
-    return MeshArrays(verts, loops, start, total, mat, smooth)
+    if not triangles:
+        return MeshArrays(verts, loops, start, total, mat, smooth)
+    tris = mesh.loop_triangles
+    if npoly and not len(tris) and hasattr(mesh, "calc_loop_triangles"):
+        mesh.calc_loop_triangles()  # Blender < 4.0 computes them on request only
+        tris = mesh.loop_triangles
+    nt = len(tris)
+    tri_loops = _get(tris, "loops", nt, 3, np.int32).astype(np.int64).reshape(nt, 3)
+    tri_polygon = _get(tris, "polygon_index", nt, 1, np.int32).astype(np.int64)
+    return MeshArrays(verts, loops, start, total, mat, smooth, tri_loops, tri_polygon)
 
 
 def polygon_of_corner(arrays: MeshArrays) -> np.ndarray:
@@ -253,6 +272,7 @@ class _ShowHiddenInViewport:
                 walk(child)
 
         walk(self.view_layer.layer_collection)
+        self._instanced_as_rendered(bpy)
         for name in self.names:
             ob = bpy.data.objects.get(name)
             if ob is None:
@@ -268,6 +288,23 @@ class _ShowHiddenInViewport:
                 self.undo.append((ob, "hide_set", True))
                 ob.hide_set(False, view_layer=self.view_layer)
         return self
+
+    def _instanced_as_rendered(self, bpy):
+        """Collections instanced by objects (nested too): the viewport depsgraph instances what their
+        viewport flags show, a render what their render flags show; make the former the latter."""
+        stack = [ob.instance_collection for ob in bpy.data.objects if ob.instance_type == "COLLECTION"]
+        seen = set()
+        while stack:
+            col = stack.pop()
+            if col is None or col.as_pointer() in seen:
+                continue
+            seen.add(col.as_pointer())
+            for target in (col, *col.objects):
+                if target.hide_viewport != target.hide_render:
+                    self.undo.append((target, "hide_viewport", target.hide_viewport))
+                    target.hide_viewport = target.hide_render
+            stack.extend(ob.instance_collection for ob in col.objects if ob.instance_type == "COLLECTION")
+            stack.extend(col.children)
 
     def __exit__(self, *exc):
         for target, what, value in reversed(self.undo):
@@ -331,11 +368,39 @@ def _reverse_corners(arrays: MeshArrays) -> np.ndarray:
     return arrays.loop_start[poly] + np.where(j == 0, 0, total - j)
 
 
+def _check_vertices(name, ob, arrays: MeshArrays, world=None):
+    """Raise ``ValueError`` for a non-finite or absurdly large (> :data:`MAX_COORDINATE`) coordinate
+    of a vertex some polygon uses, naming the object, the vertex's index in its own (evaluated) mesh
+    and all three coordinates. With ``world`` (the same vertices in world space) that is checked instead.
+    Returns the (V,) bool mask of the vertices some polygon uses (loose vertices are not rendered)."""
+    used = np.zeros(len(arrays.vertices), dtype=bool)
+    used[arrays.loop_vertices] = True
+    for space, co in [("", arrays.vertices)] if world is None else [(" in world space", world)]:
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(used & ~(np.abs(co) <= MAX_COORDINATE).all(axis=1))
+        if not len(bad):
+            continue
+        v = int(bad[0])
+        values = ", ".join(repr(float(c)) for c in co[v])
+        finite = bool(np.isfinite(co[v]).all())
+        what = f"coordinates beyond {MAX_COORDINATE:g}" if finite else "non-finite coordinates"
+        if finite and np.abs(co[v]).max() >= 3.4e38:
+            what += " (Blender stores an infinite coordinate as 3.4e38)"
+        local = "" if not space else " (object space: (" + ", ".join(repr(float(c)) for c in arrays.vertices[v]) + "))"
+        original = getattr(ob, "original", ob)
+        derived = original.type != "MESH" or any(m.show_viewport for m in original.modifiers)
+        index = f"vertex {v}" + (" of its evaluated mesh (after modifiers)" if derived else "")
+        more = f" (and {len(bad) - 1} more vertices)" if len(bad) > 1 else ""
+        raise ValueError(f"object '{name}': {index} has {what}: ({values}){space}{local}{more}")
+    return used
+
+
 def _object_part(name, ob, mesh, matrix, *, attribute, rho_attr, emit_attr, missing, pass_index, cache_key, cache):
     """Extract one evaluated mesh (cached per mesh datablock) and place it in world space."""
     local = cache.get(cache_key)
     if local is None:
-        arrays = mesh_arrays(mesh)
+        arrays = mesh_arrays(mesh, triangles=True)
+        _check_vertices(name, ob, arrays)
         radiance = read_attribute(mesh, arrays, attribute, name)
         rho_vals = read_attribute(mesh, arrays, rho_attr, name, allow_grey=True) if rho_attr else None
         emit_vals = read_attribute(mesh, arrays, emit_attr, name, allow_grey=True) if emit_attr else None
@@ -357,13 +422,20 @@ def _object_part(name, ob, mesh, matrix, *, attribute, rho_attr, emit_attr, miss
                          "Python: missing=\"black\") to treat the object as a black occluder")
     m = np.asarray(matrix, dtype=np.float64).reshape(4, 4)
     world = arrays.vertices @ m[:3, :3].T + m[:3, 3]
+    used = _check_vertices(name, ob, arrays, world)
+    if not used.all():
+        world[~used] = 0.0  # loose vertices are not rendered; whatever they hold must not reach the core
     loops = arrays.loop_vertices
+    tri_loops = arrays.tri_loops
     if np.linalg.det(m[:3, :3]) < 0:  # mirrored: keep Blender's front side
         perm = _reverse_corners(arrays)
         loops = loops[perm]
         if radiance is not None and radiance[0] == "CORNER":
             radiance = ("CORNER", radiance[1][perm])
-    placed = MeshArrays(world, loops, arrays.loop_start, arrays.loop_total, arrays.material_index, arrays.use_smooth)
+        inverse = np.argsort(perm)  # new position of every old corner
+        tri_loops = inverse[tri_loops[:, ::-1]]  # the same triangles, reversed like their polygons
+    placed = MeshArrays(world, loops, arrays.loop_start, arrays.loop_total, arrays.material_index, arrays.use_smooth,
+                        tri_loops, arrays.tri_polygon)
     return _Part(name, pass_index, placed, radiance, rho, emit)
 
 
@@ -377,6 +449,7 @@ def export_scene(
     emission_attribute: str = "emission",
     missing: str = "error",
     double_sided: bool = False,
+    status=None,
 ) -> ExportedScene:
     """Build the core Scene from every render-visible object of ``scene`` (default: the context's).
 
@@ -390,6 +463,8 @@ def export_scene(
             (empty string: use the material only).
         missing: ``"error"`` (default) or ``"black"``: what to do with objects lacking ``attribute``.
         double_sided: polygons emit from both sides.
+        status: optional ``status(text)``, told what the export is doing as it goes (the depsgraph
+            evaluation, then objects and polygons read so far, then building the core scene).
 
     Raises:
         ValueError: missing/invalid attribute (naming object and attribute), empty scene.
@@ -404,59 +479,85 @@ def export_scene(
         ctx_layer = getattr(bpy.context, "view_layer", None)
         view_layer = ctx_layer if ctx_layer is not None and ctx_layer.id_data == scene else scene.view_layers[0]
     visible = render_visible_objects(view_layer)
+    say = status if status is not None else (lambda text: None)
+    args = (visible, attribute, reflectivity_attribute, emission_attribute, missing, double_sided, say)
     if depsgraph is None:
         with _ShowHiddenInViewport(view_layer, visible):
+            say(f"exporting the scene: evaluating {len(visible)} objects (modifiers, instances)")
             depsgraph = view_layer.depsgraph
             depsgraph.update()
-            return _export(depsgraph, visible, attribute, reflectivity_attribute, emission_attribute, missing,
-                           double_sided)
-    return _export(depsgraph, visible, attribute, reflectivity_attribute, emission_attribute, missing, double_sided)
+            return _export(depsgraph, *args)
+    return _export(depsgraph, *args)
 
 
-def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_sided) -> ExportedScene:
-    parts: list = []
+def _export(depsgraph, visible, attribute, rho_attr, emit_attr, missing, double_sided, say) -> ExportedScene:
+    """One :class:`_Part` per render-visible geometry of ``depsgraph``, in the depsgraph's order.
+
+    ``depsgraph.object_instances`` yields, for an instance, a temporary object that Blender reuses
+    for the next instance: its ``type``, ``data``, material slots and matrix are valid during that
+    iteration step only (kept references later read the last instance's data, or garbage). So each
+    instance's mesh arrays, materials and matrix are copied inside the loop; only original IDs
+    (``ob.original``), which persist, are kept past it.
+    """
+    parts: list = []  # _Part, or (original object, matrix, pass index) for a to_mesh() after the loop
     cache: dict = {}
     counts: dict = {}
     mesh_parents = set()  # non-mesh objects whose evaluated geometry arrives as a MESH instance
-    entries = []
+    kw = dict(attribute=attribute, rho_attr=rho_attr, emit_attr=emit_attr, missing=missing, cache=cache)
+    n_read = 0
+    say("exporting the scene: reading meshes")
     for inst in depsgraph.object_instances:
         ob = inst.object
-        if inst.is_instance:
-            parent = inst.parent
-            parent_name = parent.original.name if parent is not None else ob.original.name
-            if parent_name not in visible or ob.original.hide_render:
-                continue
-            if ob.type == "MESH" and ob.original.name == parent_name:
-                mesh_parents.add(parent_name)
-        elif ob.original.name not in visible:
-            continue
-        entries.append((ob, inst.is_instance, inst.parent.original.name if inst.is_instance and inst.parent else None,
-                        np.array(inst.matrix_world, dtype=np.float64)))
-    kw = dict(attribute=attribute, rho_attr=rho_attr, emit_attr=emit_attr, missing=missing, cache=cache)
-    for ob, is_instance, parent_name, matrix in entries:
-        if ob.type not in _GEOMETRY_TYPES:
-            continue  # lights, cameras, empties, ...
-        base = ob.original.name
+        original = ob.original
+        base = original.name
+        is_instance = inst.is_instance
+        parent_name = None
         if is_instance:
-            k = counts.get((base, parent_name), 0)
-            counts[(base, parent_name)] = k + 1
-            name = base if base == parent_name and k == 0 else f"{base} (instance {k} of {parent_name})"
-        else:
-            name = base
-        if ob.type == "MESH":
+            parent = inst.parent
+            parent_name = parent.original.name if parent is not None else base
+            if parent_name not in visible or original.hide_render:
+                continue
+        elif base not in visible:
+            continue
+        kind = ob.type
+        if kind not in _GEOMETRY_TYPES:
+            continue  # lights, cameras, empties, ...
+        matrix = np.array(inst.matrix_world, dtype=np.float64)
+        if kind == "MESH":
+            if is_instance:
+                if base == parent_name:
+                    mesh_parents.add(parent_name)
+                k = counts.get((base, parent_name), 0)
+                counts[(base, parent_name)] = k + 1
+                name = base if base == parent_name and k == 0 else f"{base} (instance {k} of {parent_name})"
+            else:
+                name = base
             key = (ob.data.as_pointer(), base)
             parts.append(_object_part(name, ob, ob.data, matrix, pass_index=ob.pass_index, cache_key=key, **kw))
-        elif not is_instance and base not in mesh_parents:
-            mesh = ob.to_mesh()  # curves, text, surfaces, metaballs -> mesh if they produce geometry
-            try:
-                if mesh is not None and len(mesh.polygons):
-                    parts.append(_object_part(name, ob, mesh, matrix, pass_index=ob.pass_index,
-                                              cache_key=("to_mesh", base), **kw))
-            finally:
-                ob.to_mesh_clear()
-    parts = [p for p in parts if p.arrays.n_polygons]
+            n_read += parts[-1].arrays.n_polygons
+            say(f"exporting the scene: {len(parts)} objects, {n_read} polygons read")
+        elif not is_instance:
+            parts.append((original, matrix, ob.pass_index))  # its evaluated object persists: convert later
+    for i, part in enumerate(parts):
+        if isinstance(part, _Part):
+            continue
+        original, matrix, pass_index = part
+        parts[i] = None
+        if original.name in mesh_parents:
+            continue  # its geometry came as the MESH instance above
+        ob = original.evaluated_get(depsgraph)
+        mesh = ob.to_mesh()  # curves, text, surfaces, metaballs -> mesh if they produce geometry
+        try:
+            if mesh is not None and len(mesh.polygons):
+                parts[i] = _object_part(original.name, ob, mesh, matrix, pass_index=pass_index,
+                                        cache_key=("to_mesh", original.name), **kw)
+        finally:
+            ob.to_mesh_clear()
+    parts = [p for p in parts if p is not None and p.arrays.n_polygons]
     if not parts:
         raise ValueError("the scene has no render-visible geometry (no mesh, curve or text object with polygons)")
+    say(f"exporting the scene: {len(parts)} objects; building the scene of "
+        f"{sum(p.arrays.n_polygons for p in parts)} polygons")
     return _assemble(parts, double_sided)
 
 
@@ -468,6 +569,9 @@ def _assemble(parts, double_sided) -> ExportedScene:
     loops = np.concatenate([p.arrays.loop_vertices + n_v[i] for i, p in enumerate(parts)])
     starts = np.concatenate([p.arrays.loop_start + n_l[i] for i, p in enumerate(parts)])
     totals = np.concatenate([p.arrays.loop_total for p in parts])
+    n_p = np.cumsum([0] + [p.arrays.n_polygons for p in parts])
+    tri_loops = np.concatenate([p.arrays.tri_loops + n_l[i] for i, p in enumerate(parts)])
+    tri_polygon = np.concatenate([p.arrays.tri_polygon + n_p[i] for i, p in enumerate(parts)])
     linear = any(p.radiance is not None and p.radiance[0] != "FACE" for p in parts)
     if linear:
         corner = np.concatenate([
@@ -484,8 +588,11 @@ def _assemble(parts, double_sided) -> ExportedScene:
     polygon_object = np.concatenate([np.full(p.arrays.n_polygons, i, dtype=np.int64) for i, p in enumerate(parts)])
     polygon_index = np.concatenate([np.arange(p.arrays.n_polygons, dtype=np.int64) for p in parts])
     names = _PolygonNames(objects, polygon_object, polygon_index)
+    # wherever the core would split a polygon (linear radiance; concave or non-planar n-gons) it takes
+    # Blender's own triangles: the surface and the interpolated radiance Blender renders
     core_scene = Scene.from_arrays(verts, loops, starts, totals, poly_rad, corner,
-                                   double_sided=double_sided, polygon_names=names)
+                                   double_sided=double_sided, polygon_names=names,
+                                   loop_triangles=tri_loops, loop_triangle_polygons=tri_polygon)
     return ExportedScene(
         scene=core_scene,
         reflectivity=np.concatenate([p.rho for p in parts]),

@@ -11,6 +11,9 @@ planar* polygons:
 * with per-corner (linearly varying) radiance every polygon is split into triangles — a fan from
   its first vertex when it is convex and planar, ear clipping otherwise — because radiance given
   at the corners is linear over each triangle;
+* given the mesh's own triangulation (``loop_triangles``, as Blender's ``Mesh.loop_triangles``), every
+  polygon that the rules above would split is split into exactly those triangles instead, so the
+  surface and the interpolated radiance are the ones the renderer uses;
 * polygons with fewer than three distinct vertices or (almost) zero area are dropped, and the
   reason is recorded in :attr:`Scene.dropped` under the input polygon's index.
 
@@ -244,6 +247,8 @@ class Scene:
         *,
         double_sided: bool = False,
         polygon_names: Sequence[str] | Callable[[int], str] | None = None,
+        loop_triangles=None,
+        loop_triangle_polygons=None,
     ) -> Scene:
         """Build a scene from arrays in Blender's mesh layout.
 
@@ -256,6 +261,13 @@ class Scene:
                 ``point_values[loop_vertices]``): linear over each triangle.
             double_sided: polygons emit from both sides.
             polygon_names: optional labels (sequence or callable) used in error messages.
+            loop_triangles: optional (T, 3) int corner indices (into ``loop_vertices``) of the mesh's
+                own triangulation, each triangle wound like its polygon (Blender's ``loop_triangles``
+                ``.loops``); loop_triangle_polygons: (T,) int polygon of each. A polygon that would be
+                split (any polygon of more than three corners with corner radiance; a concave,
+                non-planar or self-touching one otherwise) is split into its triangles instead of a fan
+                or ear clipping; triangles of (almost) zero area are left out, and a polygon left with
+                none is dropped as "zero area". Polygons without triangles here are split the usual way.
         """
         verts = np.asarray(vertices, dtype=np.float64)
         if verts.ndim != 2 or verts.shape[1] != 3:
@@ -307,6 +319,30 @@ class Scene:
             poly_rgb = (np.zeros((n_poly, 3)) if polygon_radiance is None
                         else as_rgb(polygon_radiance, n_poly, "polygon radiance"))
 
+        tri_ptr = None
+        if loop_triangles is not None:
+            tris = np.asarray(loop_triangles).astype(np.int64, copy=False).reshape(-1, 3)
+            tri_poly = np.asarray(loop_triangle_polygons).astype(np.int64, copy=False).reshape(-1)
+            if len(tri_poly) != len(tris):
+                raise ValueError(f"loop_triangle_polygons has {len(tri_poly)} entries for {len(tris)} triangles")
+            if len(tris) and (tri_poly.min() < 0 or tri_poly.max() >= n_poly):
+                raise ValueError(f"loop_triangle_polygons: polygon index outside 0..{n_poly - 1}")
+            order = np.argsort(tri_poly, kind="stable")
+            tris, tri_poly = tris[order], tri_poly[order]
+            if len(tris):
+                s_own = starts[tri_poly]
+                outside = ((tris < s_own[:, None]) | (tris >= (s_own + totals[tri_poly])[:, None])).any(axis=1)
+                if outside.any():
+                    t = int(np.flatnonzero(outside)[0])
+                    raise ValueError(f"{_describe(polygon_names, int(tri_poly[t]))}: loop triangle {tris[t].tolist()} "
+                                     "uses corners of another polygon")
+            tri_ptr = np.zeros(n_poly + 1, dtype=np.int64)
+            np.add.at(tri_ptr, tri_poly + 1, 1)
+            tri_ptr = np.cumsum(tri_ptr)
+        has_tris = np.zeros(n_poly, dtype=bool) if tri_ptr is None else np.diff(tri_ptr) > 0
+        own_split: list[np.ndarray] = []  # polygons split into their given loop triangles
+        poly_size = np.zeros(n_poly)      # longest edge of each polygon
+
         out_verts: list[np.ndarray] = []   # (g, k, 3) blocks
         out_src: list[np.ndarray] = []
         out_rad: list[np.ndarray] = []     # (g, 3) or (g, 3, 3) in linear mode
@@ -324,6 +360,7 @@ class Scene:
             edges = np.roll(pv, -1, axis=1) - pv                       # (g, k, 3)
             elen = np.linalg.norm(edges, axis=2)                       # (g, k)
             size = elen.max(axis=1)                                    # (g,)
+            poly_size[group] = size
             area_vec = _newell(pv)
             area = np.linalg.norm(area_vec, axis=1)
             degenerate = ~(area > tol.AREA_EPS * size * size)
@@ -342,6 +379,12 @@ class Scene:
             fast = ~degenerate & planar & convex & distinct
             for i in group[degenerate]:
                 dropped[int(i)] = "zero area"
+            # polygons that would be split and come with their own triangulation: split into it
+            own = ~degenerate & has_tris[group] & (~fast | (linear and k > 3))
+            if own.any():
+                own_split.append(group[own])
+                fast &= ~own
+                degenerate = degenerate | own  # (handled below, not by the core's own splits)
             # convex non-planar quads (typically rounded input) split as ear clipping would split them,
             # (3, 0, 1) and (1, 2, 3), without the per-polygon loop
             split4 = ~degenerate & ~planar & convex & distinct if k == 4 else np.zeros(len(group), dtype=bool)
@@ -371,6 +414,21 @@ class Scene:
                 out_verts.append(pv)
                 out_rad.append(poly_rgb[g_idx])
                 out_src.append(g_idx)
+
+        if own_split:
+            want = np.zeros(n_poly, dtype=bool)
+            want[np.concatenate(own_split)] = True
+            sel = want[tri_poly]
+            t_poly = tri_poly[sel]
+            t_corner = tris[sel]                                       # (t, 3)
+            tv = verts[loops[t_corner]]                                # (t, 3, 3)
+            t_area = 0.5 * np.linalg.norm(np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0]), axis=1)
+            ok = t_area > tol.AREA_EPS * poly_size[t_poly] ** 2
+            for i in np.setdiff1d(np.flatnonzero(want), t_poly[ok]):
+                dropped[int(i)] = "zero area"
+            out_verts.append(tv[ok])
+            out_src.append(t_poly[ok])
+            out_rad.append(corner_rgb[t_corner[ok]] if linear else poly_rgb[t_poly[ok]])
 
         for i in slow:
             idx = np.arange(starts[i], starts[i] + totals[i])

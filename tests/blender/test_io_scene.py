@@ -214,3 +214,192 @@ def test_visibility_modifiers_instances_and_mirroring(hlp):
     rows = np.flatnonzero(np.isin(ex.scene.poly_source, np.flatnonzero(ex.polygon_object == i_m)))
     np.testing.assert_allclose(ex.scene.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
     assert ex.scene.poly_vertices[rows][..., 0].max() <= 0.0 and ex.scene.poly_vertices[rows][..., 2].min() == 2.0
+
+
+def _material(name, rho):
+    mat = bpy.data.materials.new(name)
+    mat.diffuse_color = (*rho, 1.0)
+    if bpy.app.version < (5, 0, 0):
+        mat.use_nodes = False  # the viewport colour is rho (5.0+: the default Principled BSDF's base colour)
+    else:
+        bsdf = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+        bsdf.inputs["Base Color"].default_value = (*rho, 1.0)
+    return mat
+
+
+def test_collection_instances_keep_every_object(hlp):
+    """Issue 14.13: a collection of three objects instanced four times (one mirrored) exports 12
+    objects, each with its own geometry, radiosity and material (the iterator's temporary object is
+    read inside the iteration, not after it)."""
+    src = bpy.data.collections.new("Src")
+    for k in range(3):
+        ob = quad_mesh(f"Part{k}", z=float(k), values=[(k + 1.0, 0.0, 0.0)])
+        bpy.context.scene.collection.objects.unlink(ob)
+        src.objects.link(ob)
+        ob.data.materials.append(_material(f"M{k}", (0.1 * (k + 1), 0.2, 0.3)))
+    for j in range(4):
+        inst = bpy.data.objects.new(f"Inst{j}", None)
+        inst.instance_type = "COLLECTION"
+        inst.instance_collection = src
+        inst.location = (5.0 * j, 0.0, 0.0)
+        if j == 2:
+            inst.scale = (-1.0, 1.0, 1.0)
+        bpy.context.scene.collection.objects.link(inst)
+    ex = export(hlp)
+    assert sorted(ex.objects) == sorted(f"Part{k} (instance 0 of Inst{j})" for j in range(4) for k in range(3))
+    sc = ex.scene
+    for j in range(4):
+        for k in range(3):
+            i = ex.objects.index(f"Part{k} (instance 0 of Inst{j})")
+            inputs = np.flatnonzero(ex.polygon_object == i)
+            assert len(inputs) == 2
+            rows = np.flatnonzero(np.isin(sc.poly_source, inputs))
+            v = sc.poly_vertices[rows]
+            np.testing.assert_allclose(v[..., 2], float(k))  # this part's own geometry
+            x = v[..., 0]
+            if j == 2:  # mirrored: x in [-2, 0] + 10, the front side still +z
+                assert x.min() == pytest.approx(10.0 - 2.0) and x.max() == pytest.approx(10.0)
+            else:
+                assert x.min() == pytest.approx(5.0 * j) and x.max() == pytest.approx(5.0 * j + 2.0)
+            np.testing.assert_allclose(sc.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
+            np.testing.assert_allclose(sc.poly_radiance[rows], [(k + 1.0, 0, 0)] * len(rows))
+            np.testing.assert_allclose(ex.reflectivity[inputs], [(0.1 * (k + 1), 0.2, 0.3)] * 2, rtol=1e-6)
+
+
+def test_bad_vertex_coordinates_name_the_object_and_its_own_vertex(hlp):
+    """Issue 14.8: an infinite (stored as 3.4e38), NaN or absurdly large coordinate is an error naming
+    the object and the vertex's index in that object (not across the scene), with all three values."""
+    quad_mesh("Floor", values=[(1, 1, 1)])  # six vertices before TallBlock's
+    ob = quad_mesh("TallBlock", z=1.0, values=[(1, 1, 1)])
+    ob.data.vertices[2].co = (float("inf"), 1.0, 1.0)
+    assert ob.data.vertices[2].co.x == pytest.approx(3.4028234663852886e38)  # how Blender stores it
+    with pytest.raises(ValueError, match=r"object 'TallBlock': vertex 2 has coordinates beyond 1e\+15 .*"
+                                         r"\(3\.40282346\d*e\+38, 1\.0, 1\.0\)"):
+        export(hlp)
+    ob.data.vertices[2].co = (float("nan"), 1.0, 1.0)  # only x NaN: all three shown
+    with pytest.raises(ValueError, match=r"object 'TallBlock': vertex 2 has non-finite coordinates: "
+                                         r"\(nan, 1\.0, 1\.0\)"):
+        export(hlp)
+    ob.data.vertices[2].co = (1.0, 1.0, 1.0)
+    ob.scale = (1e16, 1.0, 1.0)  # finite in the mesh, absurd in world space
+    with pytest.raises(ValueError, match=r"object 'TallBlock': vertex 1 has coordinates beyond .* in world space "
+                                         r"\(object space: \(1\.0, 0\.0, 1\.0\)\)"):
+        export(hlp)
+    ob.scale = (1.0, 1.0, 1.0)
+    ob.data.vertices.add(1)  # a loose vertex is not rendered: it may be anything
+    ob.data.vertices[6].co = (float("nan"), 0.0, 0.0)
+    assert export(hlp).scene.n_input == 4
+
+
+def ngon_mesh(name, domain="CORNER", concave=False, values=None):
+    """One hexagon (or a concave L-shaped hexagon) in z = 0 with a non-affine attribute."""
+    if concave:
+        verts = [(0, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0), (1, 2, 0), (0, 2, 0)]
+    else:
+        verts = [(np.cos(a), np.sin(a), 0.0) for a in np.arange(6) * np.pi / 3]
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(verts, [], [tuple(range(6))])
+    me.update()
+    a = me.attributes.new("radiosity", "FLOAT_COLOR", domain)
+    n = len(a.data)
+    vals = np.asarray(values if values is not None else [(0.0, 0, 0), (1, 1, 1), (0, 0, 0), (5, 5, 5),
+                                                         (0, 0, 0), (1, 1, 1)][:n], dtype=np.float32)
+    vals = np.broadcast_to(vals, (n, 3))
+    a.data.foreach_set("color", np.concatenate([vals, np.ones((n, 1), np.float32)], axis=1).reshape(-1))
+    ob = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def blender_triangles(ob):
+    """Blender's loop triangles of the evaluated ``ob`` in world space: {sorted vertex triple}, and
+    the corner (loop) indices of each."""
+    ev = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    me = ev.data
+    if not len(me.loop_triangles) and hasattr(me, "calc_loop_triangles"):
+        me.calc_loop_triangles()
+    m = np.array(ev.matrix_world)
+    co = np.array([tuple(v.co) for v in me.vertices]) @ m[:3, :3].T + m[:3, 3]
+    loops = [tuple(t.loops) for t in me.loop_triangles]
+    lv = np.array([lp.vertex_index for lp in me.loops])
+    return {tuple(sorted(map(tuple, np.round(co[lv[list(t)]], 9)))) for t in loops}, loops
+
+
+def exported_triangles(ex, obname):
+    i = ex.objects.index(obname)
+    rows = np.flatnonzero(np.isin(ex.scene.poly_source, np.flatnonzero(ex.polygon_object == i)))
+    return rows, {tuple(sorted(map(tuple, np.round(v[:3], 9)))) for v in ex.scene.poly_vertices[rows]}
+
+
+@pytest.mark.parametrize("domain", ["POINT", "CORNER"])
+def test_linear_ngons_are_split_into_blenders_loop_triangles(hlp, domain):
+    """Issue 14.14: POINT/CORNER radiosity on n-gons is interpolated over Blender's loop triangles
+    (for a hexagon (5,0,1),(1,2,3),(3,4,5),(1,3,5), not the core's fan from corner 0), a concave
+    n-gon included, a mirrored copy too; polygons are still named by the object's polygon index."""
+    hexa = ngon_mesh("Hexagon", domain)
+    ell = ngon_mesh("Ell", domain, concave=True)
+    ell.location = (3.0, 0.0, 0.0)
+    mirror = ngon_mesh("MirroredEll", domain, concave=True)
+    mirror.location, mirror.scale = (8.0, 0.0, 0.0), (-1.0, 1.0, 1.0)
+    ex = export(hlp)
+    assert ex.linear
+    for ob in (hexa, ell, mirror):
+        want, loops = blender_triangles(ob)
+        rows, got = exported_triangles(ex, ob.name)
+        assert got == want, ob.name
+        np.testing.assert_allclose(ex.scene.poly_normals[rows], [(0, 0, 1)] * len(rows), atol=1e-12)
+        assert {ex.polygon_name(int(s)) for s in ex.scene.poly_source[rows]} == {f"{ob.name}.polygon 0"}
+    _, loops = blender_triangles(hexa)
+    assert sorted(loops) == sorted([(5, 0, 1), (1, 2, 3), (3, 4, 5), (1, 3, 5)])
+    rows, _ = exported_triangles(ex, "Hexagon")
+    corner = np.array([0.0, 1, 0, 5, 0, 1])
+    got = {tuple(sorted(r)) for r in ex.scene.corner_radiance[rows][..., 0]}
+    assert got == {tuple(sorted(corner[list(t)])) for t in loops}
+
+
+def test_face_ngons_concave_split_like_blender_convex_whole(hlp):
+    """FACE values: a planar convex n-gon stays one polygon; a concave one and a non-planar quad are
+    split into Blender's loop triangles (for the quad a different diagonal than ear clipping's:
+    a different surface)."""
+    ngon_mesh("Hexagon", "FACE", values=[(1.0, 1.0, 1.0)])
+    ell = ngon_mesh("Ell", "FACE", concave=True, values=[(2.0, 2.0, 2.0)])
+    ell.location = (3.0, 0.0, 0.0)
+    bent = quad_mesh("Bent", values=[(1.0, 1.0, 1.0)])
+    bent.location = (0.0, 4.0, 0.0)
+    bent.data.vertices[2].co.z = 0.3  # corner 2 of polygon 0 (and corner 3 of polygon 1) lifted
+    ex = export(hlp)
+    assert not ex.linear
+    rows, _ = exported_triangles(ex, "Hexagon")
+    assert len(rows) == 1 and ex.scene.poly_counts[rows[0]] == 6  # planar convex: one polygon
+    for ob in (ell, bent):
+        want, _ = blender_triangles(ob)
+        rows, got = exported_triangles(ex, ob.name)
+        assert got == want, ob.name
+    assert ex.dropped_names() == []
+
+
+def test_instanced_collections_follow_render_visibility(hlp):
+    """Inside an instanced collection the render flags decide, as in a render: an object or child
+    collection hidden in viewports only is instanced, one disabled in renders is not; the viewport
+    flags are restored."""
+    src = bpy.data.collections.new("Src")
+    child_vp = bpy.data.collections.new("ChildHiddenInViewport")
+    child_rn = bpy.data.collections.new("ChildNoRender")
+    src.children.link(child_vp)
+    src.children.link(child_rn)
+    for k, (name, col) in enumerate([("Shown", src), ("ViewportOff", src), ("RenderOff", src),
+                                     ("InChildVp", child_vp), ("InChildNoRender", child_rn)]):
+        ob = quad_mesh(name, z=float(k), values=[(1, 1, 1)])
+        bpy.context.scene.collection.objects.unlink(ob)
+        col.objects.link(ob)
+    src.objects["ViewportOff"].hide_viewport = True
+    src.objects["RenderOff"].hide_render = True
+    child_vp.hide_viewport = True
+    child_rn.hide_render = True
+    inst = bpy.data.objects.new("Inst", None)
+    inst.instance_type = "COLLECTION"
+    inst.instance_collection = src
+    bpy.context.scene.collection.objects.link(inst)
+    ex = export(hlp)
+    assert sorted(ex.objects) == sorted(f"{n} (instance 0 of Inst)" for n in ("Shown", "ViewportOff", "InChildVp"))
+    assert src.objects["ViewportOff"].hide_viewport and child_vp.hide_viewport and not child_rn.hide_viewport
