@@ -176,35 +176,44 @@ def _occluder_edges(scene: Scene, occ: Occluders):
     return edges
 
 
-def _plane_matches(occ: Occluders, edges, P, c_hat):
+def _plane_matches(occ: Occluders, edges, P, c_hat, tol):
     """The occluder edges lying in the planes through P of fragment edges: ``(row, A, B)`` with ``row (r,)``
     the edge and ``A, B (r, 3)`` the occluder edge's end points relative to its receiver.
 
-    P (E, 3): each edge's receiver (world); c_hat (E, 3): the planes' unit normals. Dense over
-    (edge, occluder) pairs after a bounding-sphere cut, in blocks of :data:`PAIR_BUDGET` pairs."""
+    P (E, 3): each edge's receiver (world); c_hat (E, 3): the planes' unit normals; tol (E,): the
+    relative angle within which a plane is the same. The plane distances of all occluder vertices are one
+    matrix product ``ĉ·O − ĉ·P`` (world coordinates, so a loose first cut with the rounding of the world
+    coordinates added), refined in P-local coordinates on the few that pass; in blocks of
+    :data:`PAIR_BUDGET` (edge, vertex) pairs."""
     o1w, o2w, valid = edges
-    n_o = valid.shape[0]
+    n_o, k = valid.shape
     out_r, out_a, out_b = [np.zeros(0, dtype=np.int64)], [np.zeros((0, 3))], [np.zeros((0, 3))]
-    step = max(1, PAIR_BUDGET // max(1, n_o))
-    for s in range(0, len(P) if n_o else 0, step):
-        Ps, ch = P[s:s + step], c_hat[s:s + step]
-        # the plane must meet the occluder's bounding sphere
-        rel_c = occ.centers[None] - Ps[:, None]                                    # (e, n_o, 3)
-        dist = np.abs(np.einsum("eoc,ec->eo", rel_c, ch))
-        ie, io = np.nonzero(dist <= occ.radii[None] * (1 + 1e-6) + 1e-9 * _norm(rel_c))
+    if n_o == 0:
+        return out_r[0], out_a[0], out_b[0]
+    flat = o1w.reshape(-1, 3)                                                      # (V_o, 3) world
+    vnorm = _norm(flat)
+    step = max(1, PAIR_BUDGET // len(flat))
+    for s in range(0, len(P), step):
+        Ps, ch, ts = P[s:s + step], c_hat[s:s + step], tol[s:s + step]
+        d = ch @ flat.T - _dot(ch, Ps)[:, None]                                    # (e, V_o)
+        pn = _norm(Ps)
+        loose = ts[:, None] * (vnorm[None] + pn[:, None]) + 8 * _EPS * (vnorm[None] + pn[:, None])
+        small = (np.abs(d) <= loose).reshape(-1, n_o, k)
+        nxt = np.where(np.arange(k)[None, :] + 1 < occ.counts[:, None], np.arange(k)[None, :] + 1, 0)
+        both = small & np.take_along_axis(small, np.broadcast_to(nxt[None], small.shape), axis=2) & valid[None]
+        ie, io, j = np.nonzero(both)
         if len(ie) == 0:
             continue
-        a = o1w[io] - Ps[ie][:, None]                                              # (r, K_o, 3)
-        b = o2w[io] - Ps[ie][:, None]
-        chr_ = ch[ie][:, None]
-        noise = COORD_EPS * np.abs(Ps[ie]).max(axis=1)[:, None]
-        ok = (valid[io] & (np.abs(_dot(a, chr_)) <= LINE_MATCH_EPS * _norm(a) + noise)
-              & (np.abs(_dot(b, chr_)) <= LINE_MATCH_EPS * _norm(b) + noise))
+        a = o1w[io, j] - Ps[ie]                                                    # (r, 3) P-local
+        b = o2w[io, j] - Ps[ie]
+        che, te = ch[ie], ts[ie][:, None]
+        noise = COORD_EPS * np.abs(Ps[ie]).max(axis=1)
+        ok = ((np.abs(_dot(a, che)) <= te[:, 0] * _norm(a) + noise)
+              & (np.abs(_dot(b, che)) <= te[:, 0] * _norm(b) + noise))
         ok &= _norm(_cross(a, b - a)) > 0                                          # not through P
-        r, j = np.nonzero(ok)
-        out_r.append(s + ie[r])
-        out_a.append(a[r, j])
-        out_b.append(b[r, j])
+        out_r.append(s + ie[ok])
+        out_a.append(a[ok])
+        out_b.append(b[ok])
     return np.concatenate(out_r), np.concatenate(out_a), np.concatenate(out_b)
 
 
@@ -271,30 +280,36 @@ def _nearest_lines(owner, x0, x1, q_own, row, A, B):
     return q
 
 
-def _on_source_boundary(scene: Scene, poly, p, a, b):
-    """(E,) bool: the edges ``a → b`` (P-local) lie on a line of their source polygon's boundary; and the
-    dual vectors (E, 3) of those lines (from the source's own vertices, not the clipped ones)."""
+def _on_source_boundary(scene: Scene, poly, p, c_hat, tol):
+    """(E,) bool: the edges with plane normals ``c_hat (E, 3)`` through their receivers ``p (E, 3)`` lie on
+    a line of their source polygon's boundary; and the dual vectors (E, 3) of those lines (from the
+    source's own vertices, not the clipped ones).
+
+    Both lie in the source's plane, which does not contain P: they are on one line exactly when they
+    lie in one plane through P, i.e. when the source edge's end points are in the edge's plane (to the
+    relative angle ``tol (E,)``)."""
     sv = scene.poly_vertices[poly] - p[:, None]                                    # (E, K, 3)
     k = sv.shape[1]
     cnt = scene.poly_counts[poly]
-    nxt = np.arange(k)[None, :] + 1
-    nxt = np.where(nxt < cnt[:, None], nxt, 0)
-    sw = np.take_along_axis(sv, nxt[..., None], axis=1)
-    d = sw - sv
-    dl = _norm(d)
-    valid = (np.arange(k)[None, :] < cnt[:, None]) & (dl > 0)
-    du = d / np.where(dl > 0, dl, 1.0)[..., None]
-    size = dl.max(axis=1)
-    tol = (LINE_MATCH_EPS * size + COORD_EPS * np.abs(p).max(axis=1)
-           + 64 * _EPS * np.maximum(_norm(a), _norm(b)))[:, None]
-    da = _norm(_cross(a[:, None] - sv, du))
-    db = _norm(_cross(b[:, None] - sv, du))
-    hit = valid & (da <= tol) & (db <= tol)
+    nxt = np.where(np.arange(k)[None, :] + 1 < cnt[:, None], np.arange(k)[None, :] + 1, 0)
+    d = np.abs(np.einsum("ekc,ec->ek", sv, c_hat))
+    small = d <= tol[:, None] * _norm(sv) + COORD_EPS * np.abs(p).max(axis=1)[:, None]
+    hit = small & np.take_along_axis(small, nxt, axis=1) & (np.arange(k)[None, :] < cnt[:, None])
     on = hit.any(axis=1)
-    j = np.argmax(hit, axis=1)
-    rows = np.arange(len(poly))
-    q = _line_dual(sv[rows, j], sw[rows, j])
+    rows = np.flatnonzero(on)
+    j = np.argmax(hit[rows], axis=1)
+    q = np.zeros((len(poly), 3))
+    q[rows] = _line_dual(sv[rows, j], sv[rows, nxt[rows, j]])
     return on, q
+
+
+def _scatter(out, index, values):
+    """``out[index[i]] += values[i]`` for ``out (m, ...)``, ``values (E, ...)``: np.add.at, by bincount."""
+    m = out.shape[0]
+    flat = values.reshape(len(values), -1)
+    o = out.reshape(m, -1)
+    for j in range(flat.shape[1]):
+        o[:, j] += np.bincount(index, weights=flat[:, j], minlength=m)
 
 
 def _triangle_gradient(tri, vals):
@@ -336,8 +351,11 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
     pt = frags.point[fi]
     N = n[pt]
     sigma = frags.side[fi].astype(np.float64)
-    c_hat, f_hat, e_hat, h, theta, S = _arc_integrals(a, b)
+    c = _cross(a, b - a)                                                           # = a × b, (E, 3)
+    s_ab = _norm(c)
+    c_hat = c / s_ab[:, None]
     poly = frags.poly[fi]
+    fi0, sj0, sigma0, c_hat0 = fi, sj, sigma, c_hat                                # before the cuts below
 
     if scene.linear:
         tri_w = scene.poly_vertices[frags.poly, :3]                                # (F, 3, 3) world
@@ -351,23 +369,28 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
         # horizon edges: N·ω = 0 along the arc, no contribution (and their circle does not move)
         la, lb = _norm(a), _norm(b)
         horizon = (np.abs(_dot(N, a)) <= 1e-12 * la) & (np.abs(_dot(N, b)) <= 1e-12 * lb)
-        q = f_hat / h[:, None]                                                     # own line (G1)
-        on_src, q_src = _on_source_boundary(scene, poly, p[pt], a, b)
+        q = _line_dual(a, b)                                                       # own line (G1)
+        # the relative angle to which two planes through P are the same: the match tolerance plus the
+        # rounding of the clipped end points, ~eps |x| / |b − a| in the direction of a short edge
+        tol = LINE_MATCH_EPS + 64 * _EPS * np.maximum(la, lb) / _norm(b - a)
+        on_src, q_src = _on_source_boundary(scene, poly, p[pt], c_hat, tol)
         q = np.where(on_src[:, None], q_src, q)
         inner = np.flatnonzero(~on_src & ~horizon)
-        row, A, B = _plane_matches(occ, edges, p[pt[inner]], c_hat[inner])
+        row, A, B = _plane_matches(occ, edges, p[pt[inner]], c_hat[inner], tol[inner])
         if len(row):
             # edges with occluder edges in their plane: cut at those edges' corners, a line per sub-arc
             owner, x0, x1 = _split_at(a[inner], b[inner], c_hat[inner], row, A, B)
             q_sub = _nearest_lines(owner, x0, x1, q[inner], row, A, B)
             owner = inner[owner]
-            rest = np.setdiff1d(np.arange(len(a)), inner)
+            rest = np.ones(len(a), dtype=bool)
+            rest[inner] = False
+            rest = np.flatnonzero(rest)
             src = np.concatenate([rest, owner])
             q = np.concatenate([q[rest], q_sub])
             a = np.concatenate([a[rest], x0])
             b = np.concatenate([b[rest], x1])
-            c_hat, f_hat, e_hat, h, theta, S = _arc_integrals(a, b)
             fi, pt, N, sigma, poly, horizon = fi[src], pt[src], N[src], sigma[src], poly[src], horizon[src]
+        c_hat, f_hat, e_hat, h, _, S = _arc_integrals(a, b)
         if scene.linear:
             foot = f_hat * h[:, None]                                              # P-local foot point
             ge = g[fi]                                                             # (E, 3, C)
@@ -379,7 +402,7 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
         ie = _edge_integral(N, q, f_hat, e_hat, S, l0, lam1)                      # (E, C)
         ie = np.where(horizon[:, None], 0.0, ie)
         contrib = (sigma[:, None] * c_hat)[:, :, None] * ie[:, None, :]            # (E, 3, C)
-        np.add.at(gp, pt, contrib.transpose(0, 2, 1))
+        _scatter(gp, pt, contrib.transpose(0, 2, 1))
         if scene.linear:
             # interior term (G3): π (F g − (g·G) n_s / D), G the first moment about P
             from .linear_radiance import first_moment
@@ -390,12 +413,13 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
             gG = np.einsum("fkc,fk->fc", g, G)                                     # (F, C)
             inner_t = np.pi * (ff[:, None, None] * g
                                - ns[:, :, None] * (gG / np.where(D != 0, D, 1.0)[:, None])[:, None, :])
-            np.add.at(gp, frags.point, inner_t.transpose(0, 2, 1))
+            _scatter(gp, frags.point, inner_t.transpose(0, 2, 1))
 
     if want_nrm:
-        vec = 0.5 * (sigma * theta)[:, None] * c_hat                               # (E, 3): ∫ω dω per edge
+        # ∫ω dω = ½ σ Σ_e ĉ_e θ_e per fragment (the vector of eq. 4), with the edges before any cut
+        theta0 = np.arctan2(s_ab, _dot(dirs[fi0, sj0], bdirs[fi0, sj0]))
         vf = np.zeros((F, 3))
-        np.add.at(vf, fi, vec)                                                     # (F, 3) = π V_f
+        _scatter(vf, fi0, 0.5 * (sigma0 * theta0)[:, None] * c_hat0)               # (F, 3)
         if scene.linear:
             from .linear_radiance import first_moment
 
@@ -407,7 +431,7 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
                   + np.pi * np.einsum("fik,fic->fkc", T, g))                       # (F, 3, C)
         else:
             vc = vf[:, :, None] * scene.poly_radiance[frags.poly][:, None, :]
-        np.add.at(gn, frags.point, vc.transpose(0, 2, 1))
+        _scatter(gn, frags.point, vc.transpose(0, 2, 1))
     return gp, gn
 
 
