@@ -244,3 +244,70 @@ def test_shapes_empty_and_bad_input(core):
         core.irradiance_gradient(scene, np.zeros((2, 2)), np.zeros((2, 2)))
     with pytest.raises(ValueError, match="zero normal"):
         core.irradiance_gradient(scene, [[200.0, 300.0, 250.0]], [[0.0, 0.0, 0.0]])
+
+
+def test_double_sided_matches_finite_differences(core):
+    """Both sides emit: fragments seen from behind run the other way round (σ = +1)."""
+    rng = np.random.default_rng(11)
+    mesh, verts, polys = random_occluded_scene(rng)
+    polys = [q[::-1] if i % 2 else q for i, q in enumerate(polys)]   # half of them show their back
+    scene = core.Scene.from_polygons(verts, polys, rng.uniform(0.2, 2.0, size=(len(polys), 3)), double_sided=True)
+    p, n = receivers(rng)
+    _check_fd(core, scene, p, n, min_kept=0.6)
+
+
+def test_batches_agree_with_single_points(core, rng):
+    mesh = cornell_box()
+    verts, polys = mesh.arrays()
+    scene = core.Scene.from_polygons(verts, polys, mesh.radiance_array())
+    p = cornell_free_points(rng, 300)                  # more than one chunk
+    n = random_unit_vectors(rng, 300)
+    calls = []
+    g, gn = core.irradiance_gradient(scene, p, n, normal_gradient=True, progress=lambda d, t: calls.append((d, t)))
+    assert calls[-1] == (300, 300) and len(calls) >= 2
+    for i in (0, 150, 299):
+        gi, gni = core.irradiance_gradient(scene, p[i:i + 1], n[i:i + 1], normal_gradient=True)
+        np.testing.assert_allclose(gi[0], g[i], rtol=0, atol=1e-14 * np.abs(g[i]).max())
+        np.testing.assert_allclose(gni[0], gn[i], rtol=0, atol=1e-14 * np.abs(gn[i]).max())
+    with pytest.raises(core.Cancelled):
+        core.irradiance_gradient(scene, p, n, cancel=lambda: True)
+
+
+def test_surface_points_and_one_sided_limits(core, rng):
+    """Receivers on the walls (as an image's pixels are): the tangential gradient matches differences
+    along the surface, the limit from inside the face is accepted, and nothing is NaN."""
+    mesh = cornell_box()
+    verts, polys = mesh.arrays()
+    scene = core.Scene.from_polygons(verts, polys, mesh.radiance_array())
+    m = 12
+    p = cornell_free_points(rng, m)
+    p[:, 1] = 0.0                                   # on the floor (the blocks have no bottom: not under them)
+    p = p[np.abs(core.irradiance(scene, p, np.tile([0.0, 1.0, 0.0], (m, 1)))).max(axis=1) > 0]
+    m = len(p)
+    n = np.tile([0.0, 1.0, 0.0], (m, 1))
+    u = np.tile([1.0, 0.0, 0.0], (m, 1))
+    g = core.irradiance_gradient(scene, p, n)
+    gl = core.irradiance_gradient(scene, p, n, limit_directions=u)
+    assert np.isfinite(g).all() and np.isfinite(gl).all()
+    np.testing.assert_allclose(gl, g, rtol=0, atol=1e-12 * np.abs(g).max())     # interior points: the same
+    h = 1e-3
+    for k in (0, 2):                                                             # along the floor
+        ek = np.eye(3)[k]
+
+        def central(t, ek=ek):
+            return (core.irradiance(scene, p + t * ek, n) - core.irradiance(scene, p - t * ek, n)) / (2 * t)
+
+        fd = (4 * central(h / 2) - central(h)) / 3
+        fd2 = (4 * central(h / 4) - central(h / 2)) / 3
+        smooth = np.abs(fd - fd2).max(axis=1) <= 1e-8 * np.abs(fd).max(axis=1)
+        assert smooth.mean() >= 0.7
+        err = np.abs(g[:, :, k] - fd2).max(axis=1) / np.abs(g).max(axis=(1, 2))
+        assert (err[smooth] <= REL).all(), err
+
+
+def test_no_emitters_gives_zero(core):
+    mesh = cornell_box()
+    verts, polys = mesh.arrays()
+    scene = core.Scene.from_polygons(verts, polys)
+    g, gn = core.irradiance_gradient(scene, [[200.0, 300.0, 250.0]], [[0.0, 1.0, 0.0]], normal_gradient=True)
+    assert not g.any() and not gn.any()
