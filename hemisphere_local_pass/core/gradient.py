@@ -252,13 +252,14 @@ def _split_at(a, b, c_hat, row, A, B):
 def _nearest_lines(owner, x0, x1, q_own, row, A, B):
     """The line of every sub-arc ``x0 → x1 (S, 3)`` of edge ``owner (S,)``: the nearest (largest ``q·mid``)
     of its own line ``q_own (E, 3)`` and the matched occluder edges ``A → B`` of that edge spanning its
-    mid-direction. Returns q (S, 3)."""
+    mid-direction. Returns q (S, 3) and (S,) bool: an occluder edge's line was taken."""
     mid = x0 / _norm(x0)[:, None] + x1 / _norm(x1)[:, None]
     mid /= _norm(mid)[:, None]
     q = q_own[owner].copy()
     score = _dot(q, mid)
+    taken = np.zeros(len(owner), dtype=bool)
     if len(row) == 0:
-        return q
+        return q, taken
     # (sub-arc, match) pairs of the same edge: matches sorted by edge, CSR over edges
     order = np.argsort(row, kind="stable")
     row, A, B = row[order], A[order], B[order]
@@ -266,7 +267,7 @@ def _nearest_lines(owner, x0, x1, q_own, row, A, B):
     count = np.searchsorted(row, owner, side="right") - first
     sub = np.repeat(np.arange(len(owner)), count)
     if len(sub) == 0:
-        return q
+        return q, taken
     k = np.arange(len(sub)) - np.repeat(np.cumsum(count) - count, count) + np.repeat(first, count)
     Ak, Bk, md = A[k], B[k], mid[sub]
     w = _cross(Ak, Bk - Ak)
@@ -277,7 +278,22 @@ def _nearest_lines(owner, x0, x1, q_own, row, A, B):
     np.maximum.at(best, sub, sc)
     win = spans & (sc == best[sub]) & (sc > score[sub])
     q[sub[win]] = qo[win]
-    return q
+    taken[sub[win]] = True
+    return q, taken
+
+
+def _whole_fragments(scene: Scene, frags, p):
+    """(F,) bool: fragments that are their whole source polygon, vertex for vertex (the candidates'
+    P-local vertices ``v − P`` are bitwise those computed here; a cut or clipped one differs)."""
+    src = scene.poly_vertices[frags.poly]                                          # (F, Ks, 3)
+    k = min(src.shape[1], frags.verts.shape[1])
+    same = frags.counts == scene.poly_counts[frags.poly]
+    if not same.any():
+        return same
+    rel = src[:, :k] - p[frags.point][:, None]
+    used = np.arange(k)[None, :] < frags.counts[:, None]
+    eq = (frags.verts[:, :k] == rel).all(axis=2) | ~used
+    return same & eq.all(axis=1) & (frags.counts <= k)
 
 
 def _on_source_boundary(scene: Scene, poly, p, c_hat, tol):
@@ -304,12 +320,16 @@ def _on_source_boundary(scene: Scene, poly, p, c_hat, tol):
 
 
 def _scatter(out, index, values):
-    """``out[index[i]] += values[i]`` for ``out (m, ...)``, ``values (E, ...)``: np.add.at, by bincount."""
-    m = out.shape[0]
+    """``out[index[i]] += values[i]`` for ``out (m, ...)``, ``values (E, ...)`` (np.add.at, by sorted
+    segment sums: the edges come grouped by receiver, up to the cut sub-arcs)."""
+    if len(index) == 0:
+        return
     flat = values.reshape(len(values), -1)
-    o = out.reshape(m, -1)
-    for j in range(flat.shape[1]):
-        o[:, j] += np.bincount(index, weights=flat[:, j], minlength=m)
+    if (np.diff(index) < 0).any():
+        order = np.argsort(index, kind="stable")
+        index, flat = index[order], flat[order]
+    starts = np.flatnonzero(np.concatenate([[True], index[1:] != index[:-1]]))
+    out.reshape(out.shape[0], -1)[index[starts]] += np.add.reduceat(flat, starts, axis=0)
 
 
 def _triangle_gradient(tri, vals):
@@ -346,8 +366,9 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
     bdirs = np.take_along_axis(dirs, nxt[..., None], axis=1)
     valid = (slot < frags.counts[:, None]) & (_norm(bdirs - dirs) > 0)
     valid &= _norm(_cross(dirs, bdirs - dirs)) > 0
-    fi, sj = np.nonzero(valid)                                                     # edges (E,)
-    a, b = dirs[fi, sj], bdirs[fi, sj]
+    flat = np.flatnonzero(valid)                                                   # edges (E,), by fragment
+    fi, sj = np.divmod(flat, K)
+    a, b = dirs.reshape(-1, 3).take(flat, axis=0), bdirs.reshape(-1, 3).take(flat, axis=0)
     pt = frags.point[fi]
     N = n[pt]
     sigma = frags.side[fi].astype(np.float64)
@@ -355,7 +376,7 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
     s_ab = _norm(c)
     c_hat = c / s_ab[:, None]
     poly = frags.poly[fi]
-    fi0, sj0, sigma0, c_hat0 = fi, sj, sigma, c_hat                                # before the cuts below
+    fi0, a0, b0, sigma0, c_hat0 = fi, a, b, sigma, c_hat                           # before the cuts below
 
     if scene.linear:
         tri_w = scene.poly_vertices[frags.poly, :3]                                # (F, 3, 3) world
@@ -369,28 +390,39 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
         # horizon edges: N·ω = 0 along the arc, no contribution (and their circle does not move)
         la, lb = _norm(a), _norm(b)
         horizon = (np.abs(_dot(N, a)) <= 1e-12 * la) & (np.abs(_dot(N, b)) <= 1e-12 * lb)
-        q = _line_dual(a, b)                                                       # own line (G1)
+        # q of each edge: its own line (``own``; q = f̂/h from the arc frame below) or ``q_exp``
+        own = np.ones(len(a), dtype=bool)
+        q_exp = np.zeros((len(a), 3))
         # the relative angle to which two planes through P are the same: the match tolerance plus the
         # rounding of the clipped end points, ~eps |x| / |b − a| in the direction of a short edge
         tol = LINE_MATCH_EPS + 64 * _EPS * np.maximum(la, lb) / _norm(b - a)
-        on_src, q_src = _on_source_boundary(scene, poly, p[pt], c_hat, tol)
-        q = np.where(on_src[:, None], q_src, q)
+        # fragments that are their whole source polygon (not cut: bitwise the candidates' vertices)
+        # have only source edges; the others are tested edge by edge
+        whole = _whole_fragments(scene, frags, p)
+        cut = np.flatnonzero(~whole[fi])
+        on_src = whole[fi]
+        on_cut, q_cut = _on_source_boundary(scene, poly[cut], p[pt[cut]], c_hat[cut], tol[cut])
+        on_src[cut] = on_cut
+        q_exp[cut[on_cut]] = q_cut[on_cut]              # the source's own vertices, not the clipped ones
+        own[cut[on_cut]] = False
         inner = np.flatnonzero(~on_src & ~horizon)
         row, A, B = _plane_matches(occ, edges, p[pt[inner]], c_hat[inner], tol[inner])
         if len(row):
             # edges with occluder edges in their plane: cut at those edges' corners, a line per sub-arc
             owner, x0, x1 = _split_at(a[inner], b[inner], c_hat[inner], row, A, B)
-            q_sub = _nearest_lines(owner, x0, x1, q[inner], row, A, B)
+            q_sub, shadow = _nearest_lines(owner, x0, x1, _line_dual(a[inner], b[inner]), row, A, B)
             owner = inner[owner]
             rest = np.ones(len(a), dtype=bool)
             rest[inner] = False
             rest = np.flatnonzero(rest)
             src = np.concatenate([rest, owner])
-            q = np.concatenate([q[rest], q_sub])
+            q_exp = np.concatenate([q_exp[rest], q_sub])
+            own = np.concatenate([own[rest], ~shadow])
             a = np.concatenate([a[rest], x0])
             b = np.concatenate([b[rest], x1])
             fi, pt, N, sigma, poly, horizon = fi[src], pt[src], N[src], sigma[src], poly[src], horizon[src]
         c_hat, f_hat, e_hat, h, _, S = _arc_integrals(a, b)
+        q = np.where(own[:, None], f_hat / h[:, None], q_exp)                      # (G1): own line q = f̂/h
         if scene.linear:
             foot = f_hat * h[:, None]                                              # P-local foot point
             ge = g[fi]                                                             # (E, 3, C)
@@ -401,8 +433,8 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
             lam1 = None
         ie = _edge_integral(N, q, f_hat, e_hat, S, l0, lam1)                      # (E, C)
         ie = np.where(horizon[:, None], 0.0, ie)
-        contrib = (sigma[:, None] * c_hat)[:, :, None] * ie[:, None, :]            # (E, 3, C)
-        _scatter(gp, pt, contrib.transpose(0, 2, 1))
+        contrib = ie[:, :, None] * (sigma[:, None] * c_hat)[:, None, :]            # (E, C, 3)
+        _scatter(gp, pt, contrib)
         if scene.linear:
             # interior term (G3): π (F g − (g·G) n_s / D), G the first moment about P
             from .linear_radiance import first_moment
@@ -417,7 +449,7 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
 
     if want_nrm:
         # ∫ω dω = ½ σ Σ_e ĉ_e θ_e per fragment (the vector of eq. 4), with the edges before any cut
-        theta0 = np.arctan2(s_ab, _dot(dirs[fi0, sj0], bdirs[fi0, sj0]))
+        theta0 = np.arctan2(s_ab, _dot(a0, b0))
         vf = np.zeros((F, 3))
         _scatter(vf, fi0, 0.5 * (sigma0 * theta0)[:, None] * c_hat0)               # (F, 3)
         if scene.linear:
