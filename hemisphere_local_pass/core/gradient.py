@@ -390,6 +390,14 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
         # horizon edges: N·ω = 0 along the arc, no contribution (and their circle does not move)
         la, lb = _norm(a), _norm(b)
         horizon = (np.abs(_dot(N, a)) <= 1e-12 * la) & (np.abs(_dot(N, b)) <= 1e-12 * lb)
+        singular = np.zeros(0, dtype=np.int64)
+        if frags.inf is not None:
+            # one-sided limits: an edge ending at P itself (its direction only a limit) lies on a line
+            # through P, whose circle turns infinitely fast as P moves; off the horizon the position
+            # gradient does not exist there (returned as NaN)
+            at_p = (dirs != frags.verts).any(axis=2).reshape(-1)                  # (F*K,)
+            ends = at_p.take(flat) | at_p.take(fi * K + nxt.reshape(-1).take(flat))
+            singular = np.unique(pt[ends & ~horizon])
         # q of each edge: its own line (``own``; q = f̂/h from the arc frame below) or ``q_exp``
         own = np.ones(len(a), dtype=bool)
         q_exp = np.zeros((len(a), 3))
@@ -435,6 +443,7 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
         ie = np.where(horizon[:, None], 0.0, ie)
         contrib = ie[:, :, None] * (sigma[:, None] * c_hat)[:, None, :]            # (E, C, 3)
         _scatter(gp, pt, contrib)
+        gp[singular] = np.nan
         if scene.linear:
             # interior term (G3): π (F g − (g·G) n_s / D), G the first moment about P
             from .linear_radiance import first_moment
@@ -467,7 +476,7 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
     return gp, gn
 
 
-def _gradients(scene, points, normals, limit_directions, progress, cancel, occluders, want_pos, want_nrm):
+def _gradients(scene, points, normals, limit_directions, progress, cancel, occluders, budget, want_pos, want_nrm):
     from .local_pass import Cancelled
 
     p, n, u = _prepare_receivers(points, normals, limit_directions)
@@ -477,8 +486,12 @@ def _gradients(scene, points, normals, limit_directions, progress, cancel, occlu
     occ = _occluders(scene, occluders)
     edges = _occluder_edges(scene, occ)
     emits = _emitter_mask(scene)
-    for s in range(0, m, CHUNK_POINTS):
-        e = min(m, s + CHUNK_POINTS)
+    # as many receivers per chunk as local_pass.irradiance takes: the visibility stage's candidate arrays
+    # hold about ``budget`` coordinates whatever the scene size
+    k = scene.poly_vertices.shape[1] if scene.n_polygons else 3
+    size = max(1, min(CHUNK_POINTS, budget // max(1, (scene.n_polygons + 1) * k)))
+    for s in range(0, m, size):
+        e = min(m, s + size)
         if cancel is not None and cancel():
             raise Cancelled(f"cancelled after {s} of {m} points")
         gp[s:e], gn[s:e] = _chunk_gradient(scene, occ, edges, emits, p[s:e], n[s:e],
@@ -505,8 +518,9 @@ def irradiance_gradient(
     """Gradient of the exact occluded irradiance with respect to the receiver position, in closed form.
 
     Args:
-        scene, points (m, 3), normals (m, 3), limit_directions, progress, cancel, occluders: as for
-            :func:`.local_pass.irradiance` (``budget`` is accepted for the same signature).
+        scene, points (m, 3), normals (m, 3), limit_directions, progress, cancel, occluders, budget: as
+            for :func:`.local_pass.irradiance` (receivers go in chunks of the same size, at most
+            :data:`CHUNK_POINTS`).
         normal_gradient: also return :func:`irradiance_normal_gradient` (sharing the visibility work).
     Returns:
         ``dH_dP (m, 3, 3)`` float64, ``dH_dP[i, c, k] = ∂H_c/∂P_k`` at receiver i (channel c of
@@ -517,8 +531,8 @@ def irradiance_gradient(
     another shadow edge, P in a polygon's plane) it has no gradient and the value returned is one of the
     one-sided ones or undefined.
     """
-    del budget
-    gp, gn = _gradients(scene, points, normals, limit_directions, progress, cancel, occluders, True, normal_gradient)
+    gp, gn = _gradients(scene, points, normals, limit_directions, progress, cancel, occluders, budget, True,
+                        normal_gradient)
     return (gp, gn) if normal_gradient else gp
 
 
@@ -532,9 +546,9 @@ def irradiance_normal_gradient(scene: Scene, points, normals, **kwargs) -> np.nd
     as for :func:`irradiance_gradient`.
     """
     kwargs.pop("normal_gradient", None)
-    kwargs.pop("budget", None)
+    budget = kwargs.pop("budget", DEFAULT_BUDGET)
     opts = {k: kwargs.pop(k, None) for k in ("limit_directions", "progress", "cancel", "occluders")}
     if kwargs:
         raise TypeError(f"unexpected keyword arguments {sorted(kwargs)}")
     return _gradients(scene, points, normals, opts["limit_directions"], opts["progress"], opts["cancel"],
-                      opts["occluders"], False, True)[1]
+                      opts["occluders"], budget, False, True)[1]

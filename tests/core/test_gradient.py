@@ -311,3 +311,32 @@ def test_no_emitters_gives_zero(core):
     scene = core.Scene.from_polygons(verts, polys)
     g, gn = core.irradiance_gradient(scene, [[200.0, 300.0, 250.0]], [[0.0, 1.0, 0.0]], normal_gradient=True)
     assert not g.any() and not gn.any()
+
+
+def test_wall_foot_one_sided_and_corner(core):
+    """At the foot of a wall (in the one-sided limit from the floor) the gradient is the one-sided one:
+    differences along the foot line and forward differences into the room agree. In a room corner an edge
+    of a visible fragment passes through P: there is no gradient, and NaN says so."""
+    mesh = cornell_box()
+    verts, polys = mesh.arrays()
+    scene = core.Scene.from_polygons(verts, polys, mesh.radiance_array())
+    p = np.array([[0.0, 0.0, 300.0]])                       # the green wall (x = 0) meets the floor
+    n = np.array([[0.0, 1.0, 0.0]])
+    u = np.array([[1.0, 0.0, 0.0]])
+    g = core.irradiance_gradient(scene, p, n, limit_directions=u)[0]
+    h0 = core.irradiance(scene, p, n, limit_directions=u)
+
+    def along(t):
+        ez = np.array([0.0, 0.0, t])
+        return (core.irradiance(scene, p + ez, n, limit_directions=u)
+                - core.irradiance(scene, p - ez, n, limit_directions=u)) / (2 * t)
+
+    def into(t):
+        return (core.irradiance(scene, p + [t, 0.0, 0.0], n) - h0) / t
+
+    scale = np.abs(g).max()
+    np.testing.assert_allclose(((4 * along(0.5) - along(1.0)) / 3)[0], g[:, 2], rtol=0, atol=REL * scale)
+    forward = (8 * into(0.25) - 6 * into(0.5) + into(1.0)) / 3                  # O(t³) one-sided
+    np.testing.assert_allclose(forward[0], g[:, 0], rtol=0, atol=1e-6 * scale)
+    corner = core.irradiance_gradient(scene, [[0.0, 0.0, 0.0]], n, limit_directions=[[1.0, 0.0, 1.0]])
+    assert np.isnan(corner).all()
