@@ -190,18 +190,21 @@ def _plane_matches(occ: Occluders, edges, P, c_hat, tol):
     out_r, out_a, out_b = [np.zeros(0, dtype=np.int64)], [np.zeros((0, 3))], [np.zeros((0, 3))]
     if n_o == 0:
         return out_r[0], out_a[0], out_b[0]
-    flat = o1w.reshape(-1, 3)                                                      # (V_o, 3) world
-    vnorm = _norm(flat)
-    step = max(1, PAIR_BUDGET // len(flat))
+    v1, v2 = o1w.reshape(-1, 3).T.copy(), o2w.reshape(-1, 3).T.copy()             # (3, V_o) world
+    n1, n2 = _norm(v1.T), _norm(v2.T)
+    ok_edge = valid.reshape(-1)
+    step = max(1, PAIR_BUDGET // len(n1))
     for s in range(0, len(P), step):
         Ps, ch, ts = P[s:s + step], c_hat[s:s + step], tol[s:s + step]
-        d = ch @ flat.T - _dot(ch, Ps)[:, None]                                    # (e, V_o)
-        pn = _norm(Ps)
-        loose = ts[:, None] * (vnorm[None] + pn[:, None]) + 8 * _EPS * (vnorm[None] + pn[:, None])
-        small = (np.abs(d) <= loose).reshape(-1, n_o, k)
-        nxt = np.where(np.arange(k)[None, :] + 1 < occ.counts[:, None], np.arange(k)[None, :] + 1, 0)
-        both = small & np.take_along_axis(small, np.broadcast_to(nxt[None], small.shape), axis=2) & valid[None]
-        ie, io, j = np.nonzero(both)
+        cp = _dot(ch, Ps)[:, None]
+        pn = _norm(Ps)[:, None]
+        both = None
+        for v, vn in ((v1, n1), (v2, n2)):
+            loose = (ts[:, None] + 8 * _EPS) * (vn[None] + pn)
+            inp = np.abs(ch @ v - cp) <= loose                                     # (e, V_o)
+            both = inp & ok_edge[None] if both is None else both & inp
+        ie, ij = np.nonzero(both)
+        io, j = np.divmod(ij, k)
         if len(ie) == 0:
             continue
         a = o1w[io, j] - Ps[ie]                                                    # (r, 3) P-local
@@ -361,13 +364,12 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
     F = len(keep)
     dirs = directions(frags.verts, frags.inf)                                      # (F, K, 3)
     K = dirs.shape[1]
-    slot = np.arange(K)[None, :]
-    nxt = np.where(slot + 1 < frags.counts[:, None], slot + 1, 0)
-    bdirs = np.take_along_axis(dirs, nxt[..., None], axis=1)
-    valid = (slot < frags.counts[:, None]) & (_norm(bdirs - dirs) > 0)
-    valid &= _norm(_cross(dirs, bdirs - dirs)) > 0
+    # edge j runs from slot j to slot j + 1 (mod K): padding repeats the last vertex up to slot K − 1
+    # (:func:`.visibility._fit`), so padded edges have zero length and K − 1 → 0 closes the polygon
+    bdirs = np.concatenate([dirs[:, 1:], dirs[:, :1]], axis=1)
+    valid = _norm(_cross(dirs, bdirs - dirs)) > 0
     flat = np.flatnonzero(valid)                                                   # edges (E,), by fragment
-    fi, sj = np.divmod(flat, K)
+    fi = flat // K
     a, b = dirs.reshape(-1, 3).take(flat, axis=0), bdirs.reshape(-1, 3).take(flat, axis=0)
     pt = frags.point[fi]
     N = n[pt]
@@ -396,7 +398,7 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
             # through P, whose circle turns infinitely fast as P moves; off the horizon the position
             # gradient does not exist there (returned as NaN)
             at_p = (dirs != frags.verts).any(axis=2).reshape(-1)                  # (F*K,)
-            ends = at_p.take(flat) | at_p.take(fi * K + nxt.reshape(-1).take(flat))
+            ends = at_p.take(flat) | at_p.take(fi * K + (flat + 1 - fi * K) % K)
             singular = np.unique(pt[ends & ~horizon])
         # q of each edge: its own line (``own``; q = f̂/h from the arc frame below) or ``q_exp``
         own = np.ones(len(a), dtype=bool)
