@@ -76,9 +76,17 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .csr import expand
 from .culling import Occluders
 from .form_factor import directions
-from .local_pass import DEFAULT_BUDGET, _emitter_mask, _occluders, _prepare_receivers, visible_fragments_with_ff
+from .local_pass import (
+    DEFAULT_BUDGET,
+    _emitter_mask,
+    _occluders,
+    _prepare_receivers,
+    visible_fragments_and_clear_tiles,
+    visible_fragments_with_ff,
+)
 from .scene import Scene
 from .tolerances import COORD_EPS
 
@@ -354,7 +362,14 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
     gp = np.zeros((m, 3, 3))
     gn = np.zeros((m, 3, 3))
     include = np.broadcast_to(emits[None, :], (m, scene.n_polygons))
-    frags, ff = visible_fragments_with_ff(scene, p, n, u, occluders=occ, include=include)
+    if scene.linear:
+        frags, ff = visible_fragments_with_ff(scene, p, n, u, occluders=occ, include=include)
+    else:
+        # tiles nothing cuts come apart, as whole-polygon edge sets (see _clear_gradient)
+        frags, ff, clear = visible_fragments_and_clear_tiles(scene, p, n, u, occluders=occ, include=include)
+        if clear is not None:
+            _clear_gradient(clear[1], clear[0], p, n, scene.double_sided, gp if want_pos else None,
+                            gn if want_nrm else None)
     lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
     keep = np.flatnonzero(lit & (frags.counts >= 3))
     if len(keep) == 0:
@@ -476,6 +491,67 @@ def _chunk_gradient(scene, occ, edges, emits, p, n, u, want_pos, want_nrm):
             vc = vf[:, :, None] * scene.poly_radiance[frags.poly][:, None, :]
         _scatter(gn, frags.point, vc.transpose(0, 2, 1))
     return gp, gn
+
+
+#: clear-tile edge terms per batch (the fast path's temporaries stay small)
+CLEAR_EDGE_BATCH = 2**15
+
+
+def _clear_gradient(te, pairs, p, n, double_sided, gp, gn):
+    """Add the clear tiles' share to ``gp`` / ``gn (m, 3, 3)`` (either None to skip).
+
+    A clear tile's members are whole polygons, nothing cuts them, and they lie above the horizon: every
+    edge is its own fixed line (q = f̂/h in (G1)), and an edge shared by two members appears in both
+    with opposite directions, so — as for eq. 4 in :mod:`.clear_tiles` — each unique edge is evaluated once
+    with the folded weight ``W_e = Σ_i σ_ei L_i``: ``∂H/∂P += side · Σ_e W_e ĉ_e I_e`` with
+    ``I_e = (n1 S0 + n2 S1)/h`` and ``∂H/∂N += side · Σ_e W_e ½ θ_e ĉ_e``. Component arrays throughout."""
+    lit = np.ones(len(pairs.point), dtype=bool) if double_sided else pairs.side < 0
+    point, tile, side = pairs.point[lit], pairs.tile[lit], pairs.side[lit]
+    if len(point) == 0:
+        return
+    n_edges = np.diff(te.edge_ptr)[tile]
+    ends = np.cumsum(n_edges)
+    cuts = np.searchsorted(ends, np.arange(CLEAR_EDGE_BATCH, ends[-1], CLEAR_EDGE_BATCH), side="right")
+    bounds = np.unique(np.concatenate([[0], cuts, [len(point)]]))
+    P = [np.ascontiguousarray(p[:, i]) for i in range(3)]
+    Nc = [np.ascontiguousarray(n[:, i]) for i in range(3)]
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        pr, e = expand(tile[lo:hi], te.edge_ptr, np.arange(len(te.edge_a)))      # (pair in batch, edge)
+        pt = point[lo:hi][pr]
+        ax, ay, az = (te.a_xyz[i][e] - P[i][pt] for i in range(3))
+        bx, by, bz = (te.b_xyz[i][e] - P[i][pt] for i in range(3))
+        ex, ey, ez = bx - ax, by - ay, bz - az
+        cx, cy, cz = ay * ez - az * ey, az * ex - ax * ez, ax * ey - ay * ex       # a × b as a × (b − a)
+        sn = np.sqrt(cx * cx + cy * cy + cz * cz)
+        ok = sn > 0
+        inv_s = np.divide(1.0, sn, out=np.zeros_like(sn), where=ok)
+        cx, cy, cz = cx * inv_s, cy * inv_s, cz * inv_s
+        theta = np.arctan2(sn, ax * bx + ay * by + az * bz)
+        w = te.weight[e] * side[lo:hi][pr][:, None]                                # (B, 3) side · W_e
+        seg = np.cumsum(n_edges[lo:hi]) - n_edges[lo:hi]
+        targets = point[lo:hi]
+        nx, ny, nz = Nc[0][pt], Nc[1][pt], Nc[2][pt]
+        if gp is not None:
+            el = np.sqrt(ex * ex + ey * ey + ez * ez)
+            inv_l = np.divide(1.0, el, out=np.zeros_like(el), where=ok)
+            ux, uy, uz = ex * inv_l, ey * inv_l, ez * inv_l                        # ê
+            fx, fy, fz = uy * cz - uz * cy, uz * cx - ux * cz, ux * cy - uy * cx   # f̂ = ê × ĉ
+            h = sn * inv_l
+            a2 = ax * ax + ay * ay + az * az
+            b2 = bx * bx + by * by + bz * bz
+            ta, tb = ax * ux + ay * uy + az * uz, bx * ux + by * uy + bz * uz
+            s0 = 0.5 * theta + 0.5 * h * (tb / b2 - ta / a2)
+            s1 = 0.5 * h * h * (ex * (ax + bx) + ey * (ay + by) + ez * (az + bz)) / (a2 * b2)
+            n1, n2 = nx * fx + ny * fy + nz * fz, nx * ux + ny * uy + nz * uz
+            ie = np.divide(n1 * s0 + n2 * s1, h, out=np.zeros_like(h), where=ok)   # (G2), q = f̂/h
+            vec = np.stack([cx * ie, cy * ie, cz * ie], axis=1)                    # (B, 3)
+            per = np.add.reduceat(w[:, :, None] * vec[:, None, :], seg, axis=0)    # (pairs, C, 3)
+            np.add.at(gp, targets, per)
+        if gn is not None:
+            half = 0.5 * theta
+            vec = np.stack([cx * half, cy * half, cz * half], axis=1)
+            per = np.add.reduceat(w[:, :, None] * vec[:, None, :], seg, axis=0)
+            np.add.at(gn, targets, per)
 
 
 def _gradients(scene, points, normals, limit_directions, progress, cancel, occluders, budget, want_pos, want_nrm):
