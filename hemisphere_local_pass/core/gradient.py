@@ -12,7 +12,7 @@ By Reynolds' transport theorem on the sphere, for a displacement δ of P
     dH = Σ_f [ ∫_{Ω_f} ∂_δ L_f (N·ω) dω  +  ∮_{∂Ω_f} L_f (N·ω) v_out dl ]
 
 where ``v_out`` is the outward normal speed of the fragment's boundary (Arvo, "The Irradiance Jacobian
-for Partially Occluded Polyhedral Sources", SIGGRAPH 94, sec. 3). Every fragment edge lies on a great
+for Partially Occluded Polyhedral Sources", SIGGRAPH 94). Every fragment edge lies on a great
 circle: the plane through P and a *fixed 3-D line* — a source polygon's edge, the line where the source
 meets another polygon's plane (interpenetration, depth clip of sec. 2.4), or an occluder's silhouette
 edge (the shadow-volume side planes of sec. 2.3) — or on the horizon ``N·ω = 0``, which does not move
@@ -50,6 +50,13 @@ interpenetration/depth edge). In a generic configuration a plane through P holds
 where two distinct ones coincide (a shadow edge falling exactly onto a source edge), H has a kink and
 no gradient.
 
+Tiles that nothing cuts (:mod:`.clear_tiles`) are whole polygons: their edges are their own lines, and an
+edge two members share is evaluated once with the folded radiance weight (:func:`_clear_gradient`).
+Per-edge gradients of unoccluded constant triangles are also what irradiance caching uses (Schwarzhaupt,
+Jensen & Jarosz, "Practical Hessian-Based Error Control for Irradiance Caching", SIGGRAPH Asia 2012;
+NREL/Radiance ``src/rt/ambcomp.c``, with an ``acos`` edge angle); (G1) is checked here independently
+against the chain-rule derivative of Lambert's formula (tests/core/test_gradient.py).
+
 Linear (CORNER/POINT) radiance has the interior term too: the radiance seen along a fixed ω changes
 because the hit point ``x = P + t ω`` on the source plane ``n_s·x = n_s·V0`` moves,
 ``∂x/∂P·δ = δ − (n_s·δ)/(n_s·ω) ω``; with the in-plane radiance gradient g and ``D = n_s·(V0 − P)``
@@ -62,12 +69,13 @@ with the fragment's form factor F (eq. 4) and first moment ``G = ∫ (x−P) cos
 Rotational gradient ∂H/∂N (P held fixed)
 ----------------------------------------
 Only the horizon depends on N, and the integrand ``L (N·ω)`` vanishes on it, so the derivative is the
-interior term alone: ``∂H/∂N = ∫_Ω L ω dω =: V`` (the *vector irradiance*; Arvo 1994 eq. 7). For a
+interior term alone: ``∂H/∂N = ∫_Ω L ω dω =: V`` (the *vector irradiance* of Arvo 1994). For a
 fragment of constant radiance ``∫ ω dω = ½ σ Σ_e ĉ_e θ_e`` (Lambert; the vector of eq. 4); for linear
-radiance ``∫ L ω dω = π [(L(x_c) − g·x_c) V_f + T g]`` with ``V_f = ∫ ω dω / π`` and the symmetric tensor T
-of :mod:`.linear_radiance` (``G = T N``). The returned ``∂H/∂N`` is the tangential part ``(I − N Nᵀ) V``:
-the derivative of ``H(P, N/|N|)`` at ``|N| = 1``, i.e. for a rotation of N by a small vector angle φ
-(radians) ``dH = φ · (N × V)``.
+radiance ``L(x) = L_P + g·x`` (x P-local, L_P the affine radiance extrapolated to P)
+``∫ L ω dω = L_P ∫ ω dω + π T g`` with the symmetric tensor T of :mod:`.linear_radiance` (``G = T N``,
+T from three :func:`.linear_radiance.first_moment` calls with the axes as normals). The returned
+``∂H/∂N`` is the tangential part ``(I − N Nᵀ) V``: the derivative of ``H(P, N/|N|)`` at ``|N| = 1``, i.e.
+for a rotation of N by a small vector angle φ (radians) ``dH = φ · (N × V)``.
 """
 
 from __future__ import annotations
@@ -97,7 +105,7 @@ __all__ = ["irradiance_gradient", "irradiance_normal_gradient"]
 #: fragment's clipped vertices and the coordinate noise). Distinct lines closer than this are a
 #: visibility event (H has a kink there), not a configuration with a gradient.
 LINE_MATCH_EPS = 1e-9
-#: receivers per chunk (fragments of a chunk are processed together)
+#: at most this many receivers per chunk (fewer in large scenes: the same ``budget`` rule as irradiance)
 CHUNK_POINTS = 128
 #: at most this many (edge, occluder) pairs are tested at once in the shadow-edge matching
 PAIR_BUDGET = 2**21
