@@ -340,3 +340,21 @@ def test_wall_foot_one_sided_and_corner(core):
     np.testing.assert_allclose(forward[0], g[:, 0], rtol=0, atol=1e-6 * scale)
     corner = core.irradiance_gradient(scene, [[0.0, 0.0, 0.0]], n, limit_directions=[[1.0, 0.0, 1.0]])
     assert np.isnan(corner).all()
+
+
+def test_uniform_scaling_scales_the_position_gradient(core, rng):
+    """H is scale-free (a scene scaled by s about any point, receivers with it): ∂H/∂P scales by 1/s,
+    ∂H/∂N not at all; also far from the origin."""
+    mesh, verts, polys = random_occluded_scene(rng)
+    rad = rng.uniform(0.2, 2.0, size=(len(polys), 3))
+    p, n = receivers(rng)
+    ga, na = core.irradiance_gradient(core.Scene.from_polygons(verts, polys, rad), p, n, normal_gradient=True)
+    for s, shift in ((1e3, np.zeros(3)), (0.01, np.array([2e4, -1e4, 5e3]))):
+        b = core.Scene.from_polygons(verts * s + shift, polys, rad)
+        gb, nb = core.irradiance_gradient(b, p * s + shift, n, normal_gradient=True)
+        # far out, rounding the scaled inputs (ulp of 2e4 against a 0.03 scene) changes H by ~2e-9 already
+        tol = 1e-13 if not shift.any() else 1e-8
+        scale = np.abs(ga).max(axis=(1, 2))[:, None, None]
+        np.testing.assert_allclose(gb * s / scale, ga / scale, rtol=0, atol=tol)
+        scale = np.abs(na).max(axis=(1, 2))[:, None, None]
+        np.testing.assert_allclose(nb / scale, na / scale, rtol=0, atol=tol)
