@@ -147,9 +147,9 @@ def test_rigid_motion_rotates_the_gradient(core, rng):
     ga, na = core.irradiance_gradient(a, p, n, normal_gradient=True)
     gb, nb = core.irradiance_gradient(b, p @ rot.T + shift, n @ rot.T, normal_gradient=True)
     scale = np.abs(ga).max(axis=(1, 2))[:, None, None]
-    np.testing.assert_allclose(gb / scale, ga @ rot.T / scale, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(gb / scale, ga @ rot.T / scale, rtol=0, atol=1e-12)
     scale = np.abs(na).max(axis=(1, 2))[:, None, None]
-    np.testing.assert_allclose(nb / scale, na @ rot.T / scale, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(nb / scale, na @ rot.T / scale, rtol=0, atol=1e-12)
 
 
 def test_zero_gradient_where_irradiance_is_constant(core, rng):
