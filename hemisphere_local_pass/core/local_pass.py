@@ -23,7 +23,8 @@ from .scene import Scene
 from .tolerances import COORD_EPS
 from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes, visible_terms
 
-__all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_with_ff"]
+__all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_and_clear_tiles",
+           "visible_fragments_with_ff"]
 
 DEFAULT_BUDGET = 2**19
 #: at most this many receivers per chunk: small scenes' chunks then stay in cache (175 polygons: chunks
@@ -89,6 +90,13 @@ def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occl
     return frags, ff
 
 
+def visible_fragments_and_clear_tiles(scene: Scene, points, normals, limit=None, *, occluders=None, include=None):
+    """As :func:`visible_fragments_with_ff`, but the clear tiles (see :mod:`.clear_tiles`) are left out of
+    the fragments and returned apart: ``(fragments, ff, clear)`` with ``clear = (pairs, tile_edges)`` or
+    None. The fragments are the real visible pieces (with vertices) of everything else."""
+    return _visible(scene, points, normals, limit, _occluders(scene, occluders), include, use_clear=True, signed=False)
+
+
 def _tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
     cached = getattr(scene, "_tile_edges", None)
     if cached is None or cached[0] is not occ:
@@ -97,12 +105,15 @@ def _tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
     return cached[1]
 
 
-def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool):
+def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool,
+             signed: bool | None = None):
     """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
     fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
     ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
     :func:`.visibility.visible_terms`): ``ff`` is then negative for the terms to subtract, and the
-    fragments carry no vertices (``verts`` None), only their ids."""
+    fragments carry no vertices (``verts`` None), only their ids; ``signed=False`` keeps the clear tiles
+    apart but subtracts the rest into real fragments."""
+    signed = use_clear if signed is None else signed
     reps = scene.dup_rep == np.arange(scene.n_polygons)
     if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
         include = reps[None, :] if include is None else include & reps[None, :]
@@ -119,7 +130,7 @@ def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, u
     ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
     allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
     flat = None if cand.flat is None else (cand.flat, scene.poly_normals)
-    if use_clear:
+    if signed:
         # signed terms, integrated set by set; the sums need only their ids (verts None)
         terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
         ff = np.concatenate([sign * np.maximum(t.side * _contour_by_width(t, normals, points), 0.0)
