@@ -47,4 +47,5 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
             col.prop(settings, "samples")
             col.prop(settings, "output_path")
 
+        layout.prop(settings, "workers")
         layout.operator(HLP_OT_render_local_pass.bl_idname, icon='RENDER_STILL')
