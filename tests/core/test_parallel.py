@@ -258,3 +258,13 @@ def test_threads_may_share_a_pool(scenes, receivers, serial):
             t.join(timeout=120)
     for kind in ("constant", "linear"):
         _same_bits(results[kind], serial[kind])
+
+
+def test_any_executor_a_process_pool_gets_the_scene_on_demand(scenes, receivers, serial):
+    """A plain ``ProcessPoolExecutor`` (no initializer): a worker without the scene answers that it misses
+    it and the chunk comes back with it; the results are the same bits."""
+    import concurrent.futures as cf
+    import multiprocessing
+
+    with cf.ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as ex:
+        _same_bits(_all(scenes["constant"], receivers, executor=ex), serial["constant"])
