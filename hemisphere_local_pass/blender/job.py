@@ -322,7 +322,7 @@ def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, pro
     import threading
 
     from ..core import Cancelled
-    from ..core.parallel import POLL_SECONDS, WorkerPool
+    from ..core.parallel import POLL_SECONDS, WorkerDied, WorkerPool
 
     m, chunk = len(points), ck.chunk
     stop = threading.Event()
@@ -343,6 +343,8 @@ def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, pro
                 inflight[threads.submit(one, c)] = c
             finished, _ = cf.wait(list(inflight), timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
             for fut in sorted(finished, key=inflight.get):
+                if isinstance(fut.exception(), Cancelled) and isinstance(pool.failure, WorkerDied):
+                    raise pool.failure  # another chunk's worker died and stopped the pool: say that
                 c = inflight.pop(fut)
                 s, e = c * chunk, min(m, (c + 1) * chunk)
                 ck.h[s:e], ck.fsum[s:e] = fut.result()

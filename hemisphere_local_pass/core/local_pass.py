@@ -22,7 +22,7 @@ import numpy as np
 from .clear_tiles import TileEdges, clear_form_factors, clear_irradiance, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
 from .form_factor import contour_integral
-from .parallel import Cancelled, run_chunks
+from .parallel import PREPARE_LOCK, Cancelled, run_chunks
 from .projection import hemisphere_candidates
 from .rowops import take_rows
 from .scene import Scene
@@ -191,7 +191,8 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
     p, n, u = _prepare_receivers(points, normals, limit_directions)
     chunks = _chunks(scene, len(p), budget)
     if len(chunks) > 1 and (executor is not None or workers != 1) and len(occ.tile_occluder):
-        _tile_edges(scene, occ)  # prepared once here and shipped with the scene, not in every worker
+        with PREPARE_LOCK:
+            _tile_edges(scene, occ)  # prepared once here and shipped with the scene, not in every worker
 
     def args_of(s, e):
         # fresh arrays in every case: a chunk sees the same memory layout here and in a worker
@@ -257,7 +258,8 @@ def form_factors(
         depend on which side emits). In a closed scene every row sums to 1.
     """
     out = np.zeros((len(np.asarray(points).reshape(-1, 3)), scene.n_input))
-    occ = _occluders(scene, occluders)
+    with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
+        occ = _occluders(scene, occluders)
     _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, _form_factor_chunk, out, workers,
          executor)
     return out
@@ -301,8 +303,9 @@ def irradiance(
     """
     m = len(np.asarray(points).reshape(-1, 3))
     out = np.zeros((m, 3))
-    occ = _occluders(scene, occluders)
-    _irradiance_inputs(scene)  # once here, and shipped to the workers with the scene
+    with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
+        occ = _occluders(scene, occluders)
+        _irradiance_inputs(scene)  # once here, and shipped to the workers with the scene
     _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, _irradiance_chunk, out, workers,
          executor)
     return out

@@ -348,6 +348,11 @@ class WorkerPool(cf.Executor):
         """Process ids of the workers."""
         return [w.proc.pid for w in self._workers]
 
+    @property
+    def failure(self) -> BaseException | None:
+        """Why the pool stopped: a :class:`WorkerDied`, :class:`Cancelled` after :meth:`kill`, or None."""
+        return self._broken
+
     def submit(self, fn, /, *args, **kwargs) -> cf.Future:
         return self._submit(fn, args, kwargs, None)
 
@@ -365,12 +370,16 @@ class WorkerPool(cf.Executor):
             if self._broken is None:
                 self._broken = Cancelled("the worker pool was stopped")
             pending, self._pending = list(self._pending), collections.deque()
+            tasks = [w.task for w in self._workers if w.task is not None]
+            for w in self._workers:
+                w.task = None
         for fut, *_ in pending:
             fut.cancel()
         self._finalizer()  # kills and reaps once
+        for fut, _ in tasks:
+            if not fut.done():
+                fut.set_exception(Cancelled("the worker pool was stopped"))
         for w in self._workers:
-            if w.task is not None and not w.task[0].done():
-                w.task[0].set_exception(Cancelled("the worker pool was stopped"))
             if w.thread is not None and w.thread is not threading.current_thread():
                 w.thread.join(timeout=2)
 
@@ -530,33 +539,48 @@ class WorkerPool(cf.Executor):
 
 
 # ------------------------------------------------------------------------------------ the driver
-_PAYLOADS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # key object -> (shared, token, blob)
+_PAYLOADS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # key -> (weakrefs of shared, token, blob)
+_SCATTERED: dict = {}  # (id(client), token) -> the dask future of the blob (the latest one)
+#: held while a call prepares the scene's caches and pickles it: the job runs core calls in threads, and a
+#: scene must not be pickled while another thread adds a cache to it
+PREPARE_LOCK = threading.RLock()
+
+
+def _refs(shared):
+    items = shared if isinstance(shared, tuple) else (shared,)
+    try:
+        return tuple(weakref.ref(x) for x in items)
+    except TypeError:
+        return None
 
 
 def _payload(key, shared) -> tuple:
-    """``(token, blob)`` of ``shared`` (pickled once while ``key`` lives and ``shared`` is the same object)."""
-    entry = _PAYLOADS.get(key)
-    if entry is not None:
-        old = entry[0]()
-        same = old is shared or (isinstance(old, tuple) and isinstance(shared, tuple) and len(old) == len(shared)
-                                 and all(a is b for a, b in zip(old, shared)))
-        if same:
+    """``(token, blob)`` of ``shared``, pickled once while ``key`` and the objects of ``shared`` live (a
+    tuple is compared item by item); the parent keeps one such pickle (the latest)."""
+    with PREPARE_LOCK:
+        entry = _PAYLOADS.get(key)
+        items = shared if isinstance(shared, tuple) else (shared,)
+        if entry is not None and entry[0] is not None and len(entry[0]) == len(items) and all(
+                r() is x for r, x in zip(entry[0], items)):
             return entry[1], entry[2]
-    blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
-    token = uuid.uuid4().hex
-    _PAYLOADS.clear()  # one scene at a time: the parent keeps at most one extra pickle
-    _PAYLOADS[key] = (_Ref(shared), token, blob)
-    return token, blob
+        blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
+        token = uuid.uuid4().hex
+        _PAYLOADS.clear()
+        _SCATTERED.clear()
+        try:
+            _PAYLOADS[key] = (_refs(shared), token, blob)
+        except TypeError:  # not weak-referenceable: pickled on every call
+            pass
+        return token, blob
 
 
-class _Ref:
-    """A strong reference that compares like a weakref call (tuples are not weak-referenceable)."""
-
-    def __init__(self, obj):
-        self.obj = obj
-
-    def __call__(self):
-        return self.obj
+def _scatter(client, token, blob):
+    """The blob on every dask worker (``broadcast``), scattered once per client and token."""
+    with PREPARE_LOCK:
+        fut = _SCATTERED.get((id(client), token))
+        if fut is None:
+            fut = _SCATTERED[(id(client), token)] = client.scatter(blob, broadcast=True, hash=False)
+        return fut
 
 
 def _executor_width(executor) -> int:
@@ -621,7 +645,7 @@ def run_chunks(
     scattered = None
     client = getattr(pool, "_client", None)
     if not isinstance(pool, WorkerPool) and client is not None and hasattr(client, "scatter"):
-        scattered = client.scatter(blob, broadcast=True, hash=False)  # dask: once to every worker
+        scattered = _scatter(client, token, blob)  # dask: once to every worker
 
     def submit(i, with_blob=False):
         s, e = chunks[i]

@@ -97,3 +97,25 @@ def test_cancel_and_ctrl_c_with_workers_stop_every_process(mods, tmp_path, monke
     job.run_local_pass(output=str(tmp_path / "ref.exr"), preview=False, workers=1)
     with open(tmp_path / "c.exr", "rb") as a, open(tmp_path / "ref.exr", "rb") as b:
         assert a.read() == b.read()
+
+
+def test_a_killed_worker_fails_the_job_with_a_clear_error(mods, tmp_path, monkeypatch):
+    import signal
+
+    job, parallel = mods["blender.job"], mods["core.parallel"]
+    build_box(resolution=16)
+    monkeypatch.setattr(job, "MIN_CHUNK", 16)  # 16 job chunks
+    before = _children()
+    killed = []
+
+    def progress(done, total):
+        workers = sorted(_children() - before)
+        if workers and not killed:
+            os.kill(workers[0], signal.SIGKILL)
+            killed.append(workers[0])
+
+    with pytest.raises(parallel.WorkerDied, match=r"killed by SIGKILL") as info:
+        job.run_local_pass(output=str(tmp_path / "k.exr"), preview=False, workers=2, progress=progress)
+    assert str(killed[0]) in str(info.value)
+    assert isinstance(info.value, RuntimeError)  # the operator reports RuntimeErrors, the CLI exits 1
+    assert _children() == before
