@@ -216,7 +216,9 @@ def _form_factor_chunk(shared, p, n, u) -> np.ndarray:
         cp, cpoly, cff = clear_form_factors(clear[1], occ, clear[0], p, n, scene.poly_vertices)
         point, poly, ff = np.concatenate([point, cp]), np.concatenate([poly, cpoly]), np.concatenate([ff, cff])
     key = point * scene.n_input + scene.poly_source[poly]
-    out = np.bincount(key, weights=ff, minlength=m * scene.n_input).reshape(m, scene.n_input)
+    # float64 even when nothing is seen (bincount of empty int weights is int64)
+    out = np.bincount(key, weights=ff, minlength=m * scene.n_input).astype(np.float64, copy=False)
+    out = out.reshape(m, scene.n_input)
     # a polygon can fill the hemisphere (F = 1 exactly); the fragment sum may round to 1 + 2e-16, and
     # a hidden polygon's terms (F(A) - F(A ∩ V)) to -1e-17
     np.clip(out, 0.0, 1.0, out=out)

@@ -68,6 +68,8 @@ def test_job_on_workers_is_bit_identical_and_leaves_no_process(mods, tmp_path, m
     assert ops.job_arguments(bpy.context.scene, settings)["workers"] == 0
     with pytest.raises(ValueError, match="workers"):
         job.run_local_pass(workers=-2)
+    assert job.build_parser().parse_args(["render", "-o", "x.exr", "--workers", "3"]).workers == 3
+    assert job.build_parser().parse_args(["render", "-o", "x.exr"]).workers is None  # the scene setting
 
 
 def test_cancel_and_ctrl_c_with_workers_stop_every_process(mods, tmp_path, monkeypatch):

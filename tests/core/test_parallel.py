@@ -232,8 +232,8 @@ def test_the_worker_python_is_a_python():
 @pytest.mark.slow
 def test_bit_identical_on_a_dask_local_cluster(scenes, receivers, serial):
     """A dask.distributed LocalCluster of worker processes on loopback runs the same chunks."""
-    distributed = pytest.importorskip("distributed") if os.environ.get("HLP_ALLOW_NO_DASK") else __import__(
-        "distributed")
+    import distributed  # in the core venv (scripts/envs.sh); the slow tests run there only
+
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address=None, silence_logs=50) as cluster, \
             distributed.Client(cluster) as client:
