@@ -11,7 +11,10 @@ number of workers) and hand them to :func:`run_chunks`, which runs ``fn(shared, 
 
 Each chunk's result is stored under its own index, never by completion order, and a chunk computes the
 same arithmetic on the same inputs wherever it runs: results are bit-identical for any number of
-workers and any executor.
+workers and any executor — given the same numpy and the same BLAS threading. :class:`WorkerPool`
+workers inherit this process's environment; a dask nanny starts its workers with
+``OPENBLAS_NUM_THREADS=1`` (``distributed.nanny.pre-spawn-environ``), which with numpy 1.24's
+OpenBLAS moved the last bit of linear-radiance results: run the parent with the same setting there.
 
 The shared object (the prepared scene, with the caches preparation left on it) is pickled once per
 call site and reaches each worker once: a :class:`WorkerPool` sends it before a worker's first chunk,
@@ -321,8 +324,10 @@ class WorkerPool(cf.Executor):
         directory = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         env = dict(os.environ)
         env["HLP_WORKER_PARENT"] = str(os.getpid())
-        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-            env.setdefault(var, "1")  # one worker per core already; BLAS threads would spin against each other
+        # The workers inherit this process's BLAS settings on purpose (no OPENBLAS_NUM_THREADS=1): the
+        # OpenBLAS of numpy 1.24 splits a large matrix product differently with another thread count
+        # and the last bit of a result moves (seen in linear_radiance's quadrature); the core's products
+        # are small, so the BLAS threads rarely start at all.
         self._workers = []
         try:
             for _ in range(self.n_workers):
