@@ -45,6 +45,8 @@ MIN_CHUNK = 64
 MAX_CHUNK = 4096
 #: Largest (receivers x input polygons) form-factor block per chunk (32 MB of float64).
 MAX_ELEMENTS = 2**22
+#: a job starts worker processes only for at least this many receivers (a worker costs ~0.15 s to start)
+MIN_POOL_POINTS = 128
 #: Name of the image datablock that receives the pixels-mode result.
 IMAGE_NAME = "Local Pass"
 _CHECKPOINT_VERSION = 1
@@ -68,6 +70,7 @@ class JobReport:
         image_size, window: pixels mode: (W, H) and the computed (x0, y0, x1, y1).
         resumed_points: receivers taken from a checkpoint instead of being computed.
         cancelled: the job stopped early (finished chunks are in the checkpoint).
+        workers: worker processes the receivers were computed on (1: this process only).
         objects: names of the exported objects; the EXR's ``object_index`` indexes this list.
         result: the float64 results: pixels mode the image layers of the window (see
             :mod:`.outputs`; row 0 at the bottom); vertices mode ``{object name: (domain, radiance,
@@ -86,6 +89,7 @@ class JobReport:
     window: tuple | None = None
     resumed_points: int = 0
     cancelled: bool = False
+    workers: int = 1
     objects: list = field(default_factory=list, repr=False)
     result: dict = field(default_factory=dict, repr=False)
 
@@ -102,6 +106,8 @@ class JobReport:
             parts.append(f"{len(self.black_occluders)} black occluder(s)")
         if self.dropped_polygons:
             parts.append(f"{len(self.dropped_polygons)} degenerate polygon(s) dropped")
+        if self.workers > 1:
+            parts.append(f"{self.workers} workers")
         return "Local pass: " + ", ".join(parts)
 
 
@@ -216,7 +222,7 @@ def _prepare(exported, points, normals, limit, progress, cancel):
     _evaluate(exported, points[:1], normals[:1], None if limit is None else limit[:1], None, cancel)
 
 
-def _evaluate(exported, points, normals, limit, progress, cancel):
+def _evaluate(exported, points, normals, limit, progress, cancel, executor=None):
     """H (m, 3) and sum F (m,) at the receivers.
 
     In general two core calls: ``core.irradiance`` (front sides emit, linear radiance integrated
@@ -229,7 +235,8 @@ def _evaluate(exported, points, normals, limit, progress, cancel):
     from ..core import form_factors, irradiance
 
     scene = exported.scene
-    kw = {"limit_directions": limit, "cancel": cancel}
+    # the job's own pool (or this process): the core starts no pool per call
+    kw = {"limit_directions": limit, "cancel": cancel, "workers": 1, "executor": executor}
     fast = _constant_planes(exported) if limit is None else None
     if fast is not None:
         normals_in, offsets_in, radiance_in = fast
@@ -325,15 +332,18 @@ def _compute(exported, points, normals, limit, *, checkpoint_path, fingerprint, 
     if resume and ck.load():
         report.resumed_points = int(sum(min(chunk, m - c * chunk) for c in np.flatnonzero(ck.done)))
     prog = _Progress(progress, m, report.resumed_points)
+    todo = [c for c in range(len(ck.done)) if not ck.done[c]]
+    workers = report.workers if report.workers > 1 and m - report.resumed_points >= MIN_POOL_POINTS else 1
+    report.workers = workers
     try:
-        todo = np.flatnonzero(~ck.done)
-        if len(todo):
+        if todo:
             s0 = int(todo[0]) * chunk
             _prepare(exported, points[s0:], normals[s0:], None if limit is None else limit[s0:], progress, cancel)
             _stage(progress, f"computing {m - report.resumed_points} points")
-        for c in range(len(ck.done)):
-            if ck.done[c]:
-                continue
+        if workers > 1:
+            _compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel)
+            return ck
+        for c in todo:
             if cancel is not None and cancel():
                 raise Cancelled("local pass cancelled")
             s, e = c * chunk, min(m, (c + 1) * chunk)
@@ -347,6 +357,55 @@ def _compute(exported, points, normals, limit, *, checkpoint_path, fingerprint, 
         report.cancelled = True
         raise
     return ck
+
+
+def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel):
+    """The job's chunks on a pool of ``workers`` processes: each chunk is the same core call as in one
+    process (so the same bits), several at once (one parent thread each, which only waits), results
+    saved in this thread as they finish. ``progress`` and ``cancel`` run in this thread only (they may
+    touch bpy); cancel, Ctrl-C or an error kill the pool at once."""
+    import concurrent.futures as cf
+    import threading
+
+    from ..core import Cancelled
+    from ..core.parallel import POLL_SECONDS, WorkerDied, WorkerPool
+
+    m, chunk = len(points), ck.chunk
+    stop = threading.Event()
+    pool = WorkerPool(workers)
+
+    def one(c):
+        s, e = c * chunk, min(m, (c + 1) * chunk)
+        lim = None if limit is None else limit[s:e]
+        return _evaluate(exported, points[s:e], normals[s:e], lim, None, stop.is_set, pool)
+
+    threads = cf.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="hlp-job")
+    inflight = {}
+    queue = list(reversed(todo))
+    try:
+        while queue or inflight:
+            while queue and len(inflight) < workers:
+                c = queue.pop()
+                inflight[threads.submit(one, c)] = c
+            finished, _ = cf.wait(list(inflight), timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+            for fut in sorted(finished, key=inflight.get):
+                if isinstance(fut.exception(), Cancelled) and isinstance(pool.failure, WorkerDied):
+                    raise pool.failure  # another chunk's worker died and stopped the pool: say that
+                c = inflight.pop(fut)
+                s, e = c * chunk, min(m, (c + 1) * chunk)
+                ck.h[s:e], ck.fsum[s:e] = fut.result()
+                ck.done[c] = True
+                ck.save()
+                prog.advance(e - s)
+            if cancel is not None and cancel():
+                raise Cancelled("local pass cancelled")
+    except BaseException:
+        stop.set()
+        pool.kill()
+        threads.shutdown(wait=True, cancel_futures=True)
+        raise
+    threads.shutdown(wait=True)
+    pool.shutdown(wait=True)
 
 
 # ---------------------------------------------------------------------------------------- pixels
@@ -657,6 +716,7 @@ def run_local_pass(
     view_layer=None,
     overwrite=False,
     objects=None,
+    workers=None,
 ):
     """Run the exact local pass on ``scene`` (default: the context's scene).
 
@@ -690,6 +750,9 @@ def run_local_pass(
             wrote; files it did not write are never replaced (:mod:`.output_paths`). A refused
             preview is listed in ``report.refused``.
         objects: vertices mode: names of the mesh objects to evaluate (default: the selected ones).
+        workers: worker processes (0: every core this process may use; 1: this process only; default
+            the scene setting, else 0). Results are the same bits for any number. Workers run the
+            bpy-free core in a real Python (see :mod:`hemisphere_local_pass.core.parallel`).
 
     Returns:
         :class:`JobReport`.
@@ -721,6 +784,9 @@ def run_local_pass(
     rho_attr = pick(reflectivity_attribute, "reflectivity_attribute", "reflectivity")
     emit_attr = pick(emission_attribute, "emission_attribute", "emission")
     double_sided = bool(pick(double_sided, "double_sided", False))
+    workers = pick(workers, "workers", 0)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ValueError(f"workers must be 0 (every core) or a positive number, got {workers!r}")
     if mode not in ("pixels", "vertices"):
         raise ValueError(f"mode must be 'pixels' or 'vertices', got {mode!r}")
     if not attribute:
@@ -767,6 +833,11 @@ def run_local_pass(
                      f"in {time.perf_counter() - start:.1f} s")
     report = JobReport(mode=mode, black_occluders=list(exported.black_occluders),
                        dropped_polygons=exported.dropped_names(), objects=list(exported.objects), refused=refused)
+    if workers == 0:
+        from ..core.parallel import default_workers
+
+        workers = default_workers()
+    report.workers = workers  # at most; _compute uses one process for small jobs
     try:
         if mode == "pixels":
             _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
@@ -888,6 +959,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--radiance-attribute", metavar="NAME", help="vertices: radiance target (default hlp_radiance)")
     r.add_argument("--irradiance-attribute", metavar="NAME",
                    help="vertices: irradiance target (default hlp_irradiance)")
+    r.add_argument("--workers", "-j", type=int, default=None, metavar="N",
+                   help="worker processes (0: every core this process may use, the default; 1: none)")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
     m = sub.add_parser("merge", help="assemble tile EXRs into one image (and its PNG preview)")
     m.add_argument("tiles", nargs="+", metavar="TILE_FILES")
@@ -982,7 +1055,7 @@ def cli_main(argv) -> int:
             tile=args.tile, resume=args.resume, samples=args.samples, missing=args.missing,
             progress=reporter, status=None if reporter is None else reporter.stage, preview=not args.no_preview,
             overwrite=args.overwrite, objects=args.objects, radiance_attribute=args.radiance_attribute,
-            irradiance_attribute=args.irradiance_attribute,
+            irradiance_attribute=args.irradiance_attribute, workers=args.workers,
         )
         if mode == "vertices":
             report.outputs.append(_save_blend(output))

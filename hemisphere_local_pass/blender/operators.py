@@ -23,6 +23,7 @@ def job_arguments(scene, settings: HLP_PG_settings) -> dict:
         "output": output if settings.mode == 'PIXELS' else None,
         "double_sided": settings.double_sided,
         "overwrite": scene.render.use_overwrite,  # Output Properties > Output > Overwrite, as Blender's renders
+        "workers": settings.workers,
     }
 
 

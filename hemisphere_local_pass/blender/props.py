@@ -78,6 +78,17 @@ class HLP_PG_settings(bpy.types.PropertyGroup):
                      "that name is replaced only if this extension made it"),
         default="hlp_irradiance",
     )
+    workers: IntProperty(
+        name="Workers",
+        description=(
+            "Worker processes computing the local pass (0: every core Blender may use; 1: Blender's own "
+            "process only). The result is the same for any number"
+        ),
+        default=0,
+        min=0,
+        soft_max=64,
+        max=1024,
+    )
     double_sided: BoolProperty(
         name="Double Sided",
         description="Polygons emit their radiosity from both sides (else only from the front, the normal side)",

@@ -6,10 +6,15 @@ polygons and fragments. A chunk holds ``budget // (n_polygons × vertex slots)``
 the default 2**19) whatever the scene size, and the clear tiles' edge terms go in batches of
 ``clear_tiles.EDGE_BATCH``. Both defaults were measured (9,468 polygons: 2**18 → 2**19 saves 10–20 %;
 175 polygons: chunks of 192 points instead of 744 save ~10 %; larger chunks lose cache locality).
+
+The chunks are a function of the job only (scene, receivers, budget); :mod:`.parallel` runs them in this
+process (``workers=1``), on worker processes (default: every core) or on any executor, and stores each
+chunk's result by its index, so the result is bit-identical whatever runs it.
 """
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 from collections.abc import Callable
 
 import numpy as np
@@ -17,6 +22,7 @@ import numpy as np
 from .clear_tiles import TileEdges, clear_form_factors, clear_irradiance, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
 from .form_factor import contour_integral
+from .parallel import PREPARE_LOCK, Cancelled, run_chunks
 from .projection import hemisphere_candidates
 from .rowops import take_rows
 from .scene import Scene
@@ -30,10 +36,6 @@ DEFAULT_BUDGET = 2**19
 #: at most this many receivers per chunk: small scenes' chunks then stay in cache (175 polygons: chunks
 #: of 150–220 points are ~10 % faster than of 744; the per-chunk overhead is already negligible there)
 MAX_CHUNK_POINTS = 192
-
-
-class Cancelled(Exception):
-    """Raised when the ``cancel`` callback of a batch entry point returns True."""
 
 
 def _prepare_receivers(points, normals, limit_directions=None, *, single=False):
@@ -192,17 +194,46 @@ def _settle_allocator():
         _ALLOCATOR_READY = True
 
 
-def _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk):
+def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, chunk_fn, out, workers,
+         executor):
+    """``out[s:e] = chunk_fn((scene, occ), p, n, u)`` for every chunk ``(s, e)`` of the receivers, here or on
+    workers (see :func:`.parallel.run_chunks`); ``out`` is ``(m, ...)``."""
     _settle_allocator()
     p, n, u = _prepare_receivers(points, normals, limit_directions)
+    chunks = _chunks(scene, len(p), budget)
+    if len(chunks) > 1 and (executor is not None or workers != 1) and len(occ.tile_occluder):
+        with PREPARE_LOCK:
+            _tile_edges(scene, occ)  # prepared once here and shipped with the scene, not in every worker
+
+    def args_of(s, e):
+        # fresh arrays in every case: a chunk sees the same memory layout here and in a worker
+        return p[s:e].copy(), n[s:e].copy(), None if u is None else u[s:e].copy()
+
+    def store(s, e, value):
+        out[s:e] = value
+
+    run_chunks(chunk_fn, (scene, occ), chunks, args_of, store, workers=workers, executor=executor,
+               progress=progress, cancel=cancel, key=scene)
+
+
+def _form_factor_chunk(shared, p, n, u) -> np.ndarray:
+    """One chunk of :func:`form_factors`: ``(m_chunk, n_input)``."""
+    _settle_allocator()  # also in worker processes
+    scene, occ = shared
     m = len(p)
-    chunks = _chunks(scene, m, budget)
-    for s, e in chunks:
-        if cancel is not None and cancel():
-            raise Cancelled(f"cancelled after {s} of {m} points")
-        per_chunk(s, e, p[s:e], n[s:e], None if u is None else u[s:e])
-        if progress is not None:
-            progress(e, m)
+    frags, ff, clear = _visible(scene, p, n, u, occ, None, use_clear=True)
+    point, poly = frags.point, frags.poly
+    if clear is not None:
+        cp, cpoly, cff = clear_form_factors(clear[1], occ, clear[0], p, n, scene.poly_vertices)
+        point, poly, ff = np.concatenate([point, cp]), np.concatenate([poly, cpoly]), np.concatenate([ff, cff])
+    key = point * scene.n_input + scene.poly_source[poly]
+    # float64 even when nothing is seen (bincount of empty int weights is int64)
+    out = np.bincount(key, weights=ff, minlength=m * scene.n_input).astype(np.float64, copy=False)
+    out = out.reshape(m, scene.n_input)
+    # a polygon can fill the hemisphere (F = 1 exactly); the fragment sum may round to 1 + 2e-16, and
+    # a hidden polygon's terms (F(A) - F(A ∩ V)) to -1e-17
+    np.clip(out, 0.0, 1.0, out=out)
+    return out
 
 
 def form_factors(
@@ -215,6 +246,8 @@ def form_factors(
     cancel: Callable[[], bool] | None = None,
     occluders: Occluders | None = None,
     budget: int = DEFAULT_BUDGET,
+    workers: int | None = None,
+    executor: cf.Executor | None = None,
 ) -> np.ndarray:
     """Visible form factor of every input polygon from every receiver (eq. 2/4 with exact visibility).
 
@@ -226,28 +259,22 @@ def form_factors(
             a room corner the exact value at P sees the walls edge-on (ΣF = 0.5 or 0.25 in a closed
             box); the limit from inside the face sees them as any point of the face does.
         progress: called as ``progress(done, total)`` after each chunk.
-        cancel: called before each chunk; returning True raises :class:`Cancelled`.
+        cancel: called before each chunk (and while waiting for workers); returning True raises
+            :class:`Cancelled` (worker processes are stopped first).
+        workers: worker processes (None: every core this process may use, ``os.sched_getaffinity``;
+            1: this process only). Ignored when ``executor`` is given.
+        executor: any :class:`concurrent.futures.Executor` to run the chunks on (a
+            :class:`.parallel.WorkerPool` kept for many calls, a ``dask.distributed`` Client's
+            ``get_executor()`` for a cluster). The result is bit-identical for any workers and executor.
     Returns:
         (m, n_input) float64. Polygons are opaque from both sides; the factor is geometric (it does not
         depend on which side emits). In a closed scene every row sums to 1.
     """
     out = np.zeros((len(np.asarray(points).reshape(-1, 3)), scene.n_input))
-
-    occ = _occluders(scene, occluders)
-
-    def per_chunk(s, e, p, n, u):
-        frags, ff, clear = _visible(scene, p, n, u, occ, None, use_clear=True)
-        point, poly = frags.point, frags.poly
-        if clear is not None:
-            cp, cpoly, cff = clear_form_factors(clear[1], occ, clear[0], p, n, scene.poly_vertices)
-            point, poly, ff = np.concatenate([point, cp]), np.concatenate([poly, cpoly]), np.concatenate([ff, cff])
-        key = point * scene.n_input + scene.poly_source[poly]
-        out[s:e] = np.bincount(key, weights=ff, minlength=(e - s) * scene.n_input).reshape(e - s, scene.n_input)
-        # a polygon can fill the hemisphere (F = 1 exactly); the fragment sum may round to 1 + 2e-16, and
-        # a hidden polygon's terms (F(A) - F(A ∩ V)) to -1e-17
-        np.clip(out[s:e], 0.0, 1.0, out=out[s:e])
-
-    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
+    with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
+        occ = _occluders(scene, occluders)
+    _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, _form_factor_chunk, out, workers,
+         executor)
     return out
 
 
@@ -272,6 +299,8 @@ def irradiance(
     cancel: Callable[[], bool] | None = None,
     occluders: Occluders | None = None,
     budget: int = DEFAULT_BUDGET,
+    workers: int | None = None,
+    executor: cf.Executor | None = None,
 ) -> np.ndarray:
     """Irradiance ``H = ∫ L cosθ dω = π Σ_i L_i F_i`` at every receiver, ``(m, 3)`` float64 (W m^-2).
 
@@ -287,38 +316,54 @@ def irradiance(
     """
     m = len(np.asarray(points).reshape(-1, 3))
     out = np.zeros((m, 3))
-    emits = _emitter_mask(scene)
+    with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
+        occ = _occluders(scene, occluders)
+        _irradiance_inputs(scene)  # once here, and shipped to the workers with the scene
+    _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, _irradiance_chunk, out, workers,
+         executor)
+    return out
 
-    occ = _occluders(scene, occluders)
 
-    rad_cols = None if scene.linear else np.ascontiguousarray(scene.poly_radiance.T)   # (3, n) for gathers
+def _irradiance_inputs(scene: Scene):
+    """``(emits (n,) bool, radiance columns (3, n) or None, nonnegative)`` for :func:`irradiance`; cached."""
+    cached = getattr(scene, "_irradiance_inputs", None)
+    if cached is None:
+        emits = _emitter_mask(scene)
+        rad_cols = None if scene.linear else np.ascontiguousarray(scene.poly_radiance.T)  # (3, n) for gathers
+        nonnegative = bool((scene.corner_radiance >= 0).all() if scene.linear else (scene.poly_radiance >= 0).all())
+        cached = scene._irradiance_inputs = (emits, rad_cols, nonnegative)
+    return cached
 
-    def per_chunk(s, e, p, n, u):
-        include = np.broadcast_to(emits[None, :], (e - s, scene.n_polygons))
-        frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear)
-        lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
-        if scene.linear:
-            from .linear_radiance import linear_irradiance
 
-            tri = scene.poly_vertices[frags.poly, :3] - p[frags.point][:, None, :]
-            contrib = linear_irradiance(frags.verts, frags.counts, n[frags.point], scene.poly_normals[frags.poly],
-                                        tri, scene.corner_radiance[frags.poly], form_factor=ff)
-            contrib = np.where(lit[:, None], contrib, 0.0)
-            for c in range(3):
-                out[s:e, c] = np.pi * np.bincount(frags.point, weights=contrib[:, c], minlength=e - s)
-        else:
-            w = np.where(lit, ff, 0.0)
-            for c in range(3):
-                out[s:e, c] = np.pi * np.bincount(frags.point, weights=w * rad_cols[c][frags.poly], minlength=e - s)
-        if clear is not None:
-            out[s:e] += np.pi * clear_irradiance(clear[1], clear[0], p, n, scene.double_sided)
-        if nonnegative:
-            # the sums mix signed terms (F(A) - F(A ∩ V), welded edges); with radiance >= 0 the exact
-            # irradiance is >= 0, and a rounding-level -1e-22 where nothing is seen is clamped
-            np.maximum(out[s:e], 0.0, out=out[s:e])
+def _irradiance_chunk(shared, p, n, u) -> np.ndarray:
+    """One chunk of :func:`irradiance`: ``(m_chunk, 3)``."""
+    _settle_allocator()  # also in worker processes
+    scene, occ = shared
+    emits, rad_cols, nonnegative = _irradiance_inputs(scene)
+    m = len(p)
+    out = np.zeros((m, 3))
+    include = np.broadcast_to(emits[None, :], (m, scene.n_polygons))
+    frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear)
+    lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
+    if scene.linear:
+        from .linear_radiance import linear_irradiance
 
-    nonnegative = bool((scene.corner_radiance >= 0).all() if scene.linear else (scene.poly_radiance >= 0).all())
-    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
+        tri = scene.poly_vertices[frags.poly, :3] - p[frags.point][:, None, :]
+        contrib = linear_irradiance(frags.verts, frags.counts, n[frags.point], scene.poly_normals[frags.poly],
+                                    tri, scene.corner_radiance[frags.poly], form_factor=ff)
+        contrib = np.where(lit[:, None], contrib, 0.0)
+        for c in range(3):
+            out[:, c] = np.pi * np.bincount(frags.point, weights=contrib[:, c], minlength=m)
+    else:
+        w = np.where(lit, ff, 0.0)
+        for c in range(3):
+            out[:, c] = np.pi * np.bincount(frags.point, weights=w * rad_cols[c][frags.poly], minlength=m)
+    if clear is not None:
+        out += np.pi * clear_irradiance(clear[1], clear[0], p, n, scene.double_sided)
+    if nonnegative:
+        # the sums mix signed terms (F(A) - F(A ∩ V), welded edges); with radiance >= 0 the exact
+        # irradiance is >= 0, and a rounding-level -1e-22 where nothing is seen is clamped
+        np.maximum(out, 0.0, out=out)
     return out
 
 

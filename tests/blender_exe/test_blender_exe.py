@@ -307,3 +307,39 @@ def test_subprocess_python_is_not_blenders():
     """Sanity: this test process is plain Python (the core venv), not Blender's."""
     assert "bpy" not in sys.modules
     assert subprocess.run([sys.executable, "-c", "import hemisphere_local_pass"], cwd=ROOT).returncode == 0
+
+
+def test_workers_under_blender_34(blender, blender_env, sample_blend, tmp_path):
+    """Blender 3.4's ``sys.executable`` is whatever ``python3.11`` comes first on PATH (here possibly a
+    pyenv shim without Debian's numpy): the workers run the Python of Blender's own installation
+    (``sys.prefix``), import only the core, and give the same file as one process."""
+    one, two = tmp_path / "one.exr", tmp_path / "two.exr"
+    expr = python_expr(
+        "import bpy, json, os, sys, hemisphere_local_pass as h",
+        "from hemisphere_local_pass.core import parallel",
+        "from hemisphere_local_pass.blender import job",
+        "job.MIN_CHUNK = 32",  # several job chunks on the 16 x 16 image
+        f"a = h.run_local_pass(output={str(one)!r}, preview=False, workers=1)",
+        f"b = h.run_local_pass(output={str(two)!r}, preview=False, workers=2)",
+        "pool = parallel.WorkerPool(1)",
+        "mods = pool.submit(eval, 'sorted(__import__(\"sys\").modules)').result(60)",
+        "np_version = pool.submit(eval, '__import__(\"numpy\").__version__').result(60)",
+        "pool.shutdown()",
+        "me = str(os.getpid())",
+        "kids = [p for p in os.listdir('/proc') if p.isdigit() and open('/proc/%s/stat' % p).read()"
+        ".rsplit(')', 1)[1].split()[1] == me]",
+        "import numpy",
+        "bad = [m for m in mods if m == 'bpy' or m.startswith('hemisphere_local_pass.blender')]",
+        "print('HLP-RESULT ' + json.dumps({'workers': [a.workers, b.workers], 'python': parallel.worker_python(),",
+        "      'prefix': sys.prefix, 'bpy': bad,",
+        "      'numpy': [np_version, numpy.__version__], 'children': kids}))",
+    )
+    result = run_blender([blender, *HEADLESS, sample_blend, "--python-expr", expr], blender_env)
+    assert_clean(result)
+    assert_no_python_error(result)
+    info = result_json(result)
+    assert info["workers"] == [1, 2]
+    assert info["python"].startswith(info["prefix"]) and os.path.basename(info["python"]).startswith("python3")
+    assert info["bpy"] == [] and info["numpy"][0] == info["numpy"][1]
+    assert info["children"] == []
+    assert one.read_bytes() == two.read_bytes()
