@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["JobReport", "cli_main", "parse_tile", "run_local_pass", "tile_window"]
+__all__ = ["JobReport", "JobStep", "cli_main", "local_pass_steps", "parse_tile", "run_local_pass", "tile_window"]
 
 #: Receivers per chunk are ``clip(ceil(m / CHUNKS_PER_JOB), MIN_CHUNK, MAX_CHUNK)``: few enough
 #: checkpoint writes, small enough that an interruption loses little.
@@ -96,6 +96,16 @@ class JobReport:
         if self.dropped_polygons:
             parts.append(f"{len(self.dropped_polygons)} degenerate polygon(s) dropped")
         return "Local pass: " + ", ".join(parts)
+
+
+@dataclass
+class JobStep:
+    """What :func:`local_pass_steps` yields after every finished chunk: ``done`` of ``total``
+    receivers (points) evaluated so far. Between two steps nothing of Blender's data is touched, so
+    a modal operator can return to the event loop there (``blender/modal.py``)."""
+
+    done: int
+    total: int
 
 
 # ---------------------------------------------------------------------------------------- helpers
@@ -296,6 +306,7 @@ def _compute(exported, points, normals, limit, *, checkpoint_path, fingerprint, 
             ck.done[c] = True
             ck.save()
             prog.advance(e - s)
+            yield JobStep(prog.base, m)  # a chunk boundary: the caller may return to Blender's event loop
     except (KeyboardInterrupt, Cancelled):
         report.cancelled = True
         raise
@@ -333,8 +344,8 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
     fingerprint = _digest("pixels", core_scene.poly_vertices, core_scene.poly_radiance,
                           core_scene.corner_radiance if core_scene.linear else 0, pts, normals)
     ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
-    ck = _compute(exported, pts, normals, None, checkpoint_path=ck_path, fingerprint=fingerprint, resume=resume,
-                  progress=progress, cancel=cancel, report=report)
+    ck = yield from _compute(exported, pts, normals, None, checkpoint_path=ck_path, fingerprint=fingerprint,
+                             resume=resume, progress=progress, cancel=cancel, report=report)
     h_hit, fsum_hit = ck.h, ck.fsum
     report.points = len(pts)
     report.max_form_factor_error = float(np.abs(fsum_hit - 1.0).max()) if len(pts) else 0.0
@@ -530,7 +541,7 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
     fingerprint = _digest("vertices", core_scene.poly_vertices, core_scene.poly_radiance,
                           core_scene.corner_radiance if core_scene.linear else 0, all_pts, all_nrm, all_lim)
     ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
-    ck = _compute(exported, all_pts, all_nrm, all_lim, checkpoint_path=ck_path, fingerprint=fingerprint,
+    ck = yield from _compute(exported, all_pts, all_nrm, all_lim, checkpoint_path=ck_path, fingerprint=fingerprint,
                   resume=resume, progress=progress, cancel=cancel, report=report)
     report.points = len(all_pts)
     report.max_form_factor_error = float(np.abs(ck.fsum - 1.0).max()) if len(all_pts) else 0.0
@@ -561,7 +572,21 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
 
 
 # ------------------------------------------------------------------------------------------- job
-def run_local_pass(
+def run_local_pass(*args, **kwargs):
+    """Run the exact local pass to the end: :func:`local_pass_steps` (same arguments) drained.
+
+    Returns:
+        :class:`JobReport`.
+    """
+    steps = local_pass_steps(*args, **kwargs)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+
+
+def local_pass_steps(
     scene=None,
     *,
     output=None,
@@ -582,8 +607,12 @@ def run_local_pass(
     preview=True,
     image=True,
     view_layer=None,
+    exported=None,
 ):
-    """Run the exact local pass on ``scene`` (default: the context's scene).
+    """The exact local pass on ``scene`` (default: the context's scene) as a generator: it yields a
+    :class:`JobStep` after every chunk and returns the :class:`JobReport` (``StopIteration.value``).
+    :func:`run_local_pass` drains it; a modal operator advances it one timer tick at a time; closing
+    it (``.close()``) between steps stops the job before anything is written.
 
     Arguments left at ``None`` come from the scene's settings (``scene.hlp_settings`` when the
     extension is registered), else the defaults: ``mode="pixels"``, ``attribute="radiosity"``,
@@ -608,6 +637,8 @@ def run_local_pass(
             ``hlp_irradiance``); an existing attribute of that name is overwritten only if it was
             made by this extension or is named here explicitly.
         image: store the pixels in the image datablock "Local Pass".
+        exported: an :class:`~.scene_export.ExportedScene` of this scene made with the same
+            attribute settings, to reuse (the render engine's bands); default: export the scene.
 
     Returns:
         :class:`JobReport`.
@@ -665,17 +696,18 @@ def run_local_pass(
 
     from .scene_export import export_scene
 
-    exported = export_scene(scene, view_layer=view_layer, attribute=attribute, reflectivity_attribute=rho_attr,
-                            emission_attribute=emit_attr, missing=missing, double_sided=double_sided)
+    if exported is None:
+        exported = export_scene(scene, view_layer=view_layer, attribute=attribute, reflectivity_attribute=rho_attr,
+                                emission_attribute=emit_attr, missing=missing, double_sided=double_sided)
     report = JobReport(mode=mode, black_occluders=list(exported.black_occluders),
                        dropped_polygons=exported.dropped_names(), objects=list(exported.objects))
     try:
         if mode == "pixels":
-            _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
+            yield from _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
                         samples=samples, progress=progress, cancel=cancel, preview=preview, image=image)
         else:
             explicit = {n for n in (radiance_attribute, irradiance_attribute) if n}
-            _run_vertices(scene, view_layer, exported, report, attribute=attribute, rho_attr=rho_attr,
+            yield from _run_vertices(scene, view_layer, exported, report, attribute=attribute, rho_attr=rho_attr,
                           emit_attr=emit_attr, radiance_attribute=radiance_attribute or "hlp_radiance",
                           irradiance_attribute=irradiance_attribute or "hlp_irradiance", output=output,
                           resume=resume, progress=progress, cancel=cancel, explicit_targets=explicit)
