@@ -314,12 +314,13 @@ def _compute(exported, points, normals, limit, *, checkpoint_path, fingerprint, 
 
 
 # ---------------------------------------------------------------------------------------- pixels
-def _run_pixels(scene, exported, report, *, output, region, tile, resume, samples, progress, cancel, preview, image):
+def _run_pixels(scene, exported, report, *, output, region, tile, resume, samples, progress, cancel, preview, image,
+                depsgraph=None):
     from ..core.raycast import cast_rays
     from . import camera as hcam
     from . import outputs
 
-    params = hcam.camera_params(scene)
+    params = hcam.camera_params(scene, depsgraph=depsgraph)
     size = hcam.image_size(params)
     window = hcam.pixel_window(params, region)
     full_window = window
@@ -608,6 +609,7 @@ def local_pass_steps(
     image=True,
     view_layer=None,
     exported=None,
+    depsgraph=None,
 ):
     """The exact local pass on ``scene`` (default: the context's scene) as a generator: it yields a
     :class:`JobStep` after every chunk and returns the :class:`JobReport` (``StopIteration.value``).
@@ -639,6 +641,8 @@ def local_pass_steps(
         image: store the pixels in the image datablock "Local Pass".
         exported: an :class:`~.scene_export.ExportedScene` of this scene made with the same
             attribute settings, to reuse (the render engine's bands); default: export the scene.
+        depsgraph: an evaluated depsgraph to read the objects and the camera from as it is (the
+            render engine's); default: the view layer's.
 
     Returns:
         :class:`JobReport`.
@@ -692,19 +696,21 @@ def local_pass_steps(
     if mode == "pixels":
         from .camera import camera_params
 
-        camera_params(scene)  # no camera: fail before the (slow) export
+        camera_params(scene, depsgraph=depsgraph)  # no camera: fail before the (slow) export
 
     from .scene_export import export_scene
 
     if exported is None:
-        exported = export_scene(scene, view_layer=view_layer, attribute=attribute, reflectivity_attribute=rho_attr,
-                                emission_attribute=emit_attr, missing=missing, double_sided=double_sided)
+        exported = export_scene(scene, depsgraph=depsgraph, view_layer=view_layer, attribute=attribute,
+                                reflectivity_attribute=rho_attr, emission_attribute=emit_attr, missing=missing,
+                                double_sided=double_sided)
     report = JobReport(mode=mode, black_occluders=list(exported.black_occluders),
                        dropped_polygons=exported.dropped_names(), objects=list(exported.objects))
     try:
         if mode == "pixels":
             yield from _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
-                        samples=samples, progress=progress, cancel=cancel, preview=preview, image=image)
+                        samples=samples, progress=progress, cancel=cancel, preview=preview, image=image,
+                        depsgraph=depsgraph)
         else:
             explicit = {n for n in (radiance_attribute, irradiance_attribute) if n}
             yield from _run_vertices(scene, view_layer, exported, report, attribute=attribute, rho_attr=rho_attr,
