@@ -33,7 +33,8 @@ import time
 import bpy
 import numpy as np
 
-__all__ = ["ENGINE_ID", "PASSES", "HLP_RenderEngine", "band_windows", "pass_arrays"]
+__all__ = ["ENGINE_ID", "PASSES", "HLP_PT_engine_bake", "HLP_PT_engine_settings", "HLP_RenderEngine", "band_windows",
+           "pass_arrays"]
 
 ENGINE_ID = "HEMISPHERE_LOCAL_PASS"
 
@@ -238,27 +239,101 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
                           f"{points:,} points in {seconds:.1f} s, max |sum F - 1| = {worst:.2e}")
 
 
-def compatible_panels():
-    """Blender's own panels that make sense for this engine (format, output, colour management ...
-    have no COMPAT_ENGINES and show anyway): the ones that list engines explicitly."""
-    from bl_ui import properties_output, properties_render  # noqa: F401
+class HLP_EngineButtonsPanel:
+    """Render-context panels of this engine (as ``RenderButtonsPanel`` + ``COMPAT_ENGINES``)."""
 
-    names = ("RENDER_PT_color_management", "RENDER_PT_color_management_curves")
+    bl_space_type = 'PROPERTIES'
+    bl_region_type = 'WINDOW'
+    bl_context = "render"
+    COMPAT_ENGINES = {ENGINE_ID}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and hasattr(context.scene, "hlp_settings")
+
+
+#: Settings that other parts of the extension add to ``HLP_PG_settings`` (drawn when present).
+_OPTIONAL = (("tolerance", "Tolerance"), ("workers", "Workers"))
+
+
+class HLP_PT_engine_settings(HLP_EngineButtonsPanel, bpy.types.Panel):
+    """Radiosity input and sampling of the exact local pass"""
+
+    bl_label = "Local Pass"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.hlp_settings
+        col = layout.column()
+        col.prop(settings, "attribute", text="Radiosity")
+        col.prop(settings, "missing_attribute", text="Missing")
+        col.prop(settings, "double_sided")
+        col = layout.column(heading="Receiver")
+        col.prop(settings, "reflectivity_attribute", text="Reflectivity")
+        col.prop(settings, "emission_attribute", text="Emission")
+        col = layout.column()
+        col.prop(settings, "samples", text="Supersampling")
+        for prop, label in _OPTIONAL:
+            if hasattr(settings, prop):
+                col.prop(settings, prop, text=label)
+
+
+class HLP_PT_engine_bake(HLP_EngineButtonsPanel, bpy.types.Panel):
+    """Bake the local pass into vertex colours, or render it to the Local Pass image without F12"""
+
+    bl_label = "Bake"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.operator("hlp.bake_vertex_colours", icon='VPAINT_HLT')
+        layout.prop(context.scene.hlp_settings, "output_path")
+        layout.operator("hlp.render_local_pass", text="Render to Image", icon='RENDER_STILL')
+
+
+def draw_render_context(self, context):
+    """One line under Properties > Render > Render Engine with any engine: the local pass's buttons,
+    found without scrolling (the full panel is at the end of the tab)."""
+    if context.engine == ENGINE_ID or not hasattr(context.scene, "hlp_settings"):
+        return
+    row = self.layout.row(align=True)
+    row.label(text="Local Pass", icon='LIGHT_HEMI')
+    row.operator("hlp.render_local_pass", text="Render", icon='RENDER_STILL')
+    row.operator("hlp.bake_vertex_colours", text="Bake", icon='VPAINT_HLT')
+
+
+classes = (HLP_RenderEngine, HLP_PT_engine_settings, HLP_PT_engine_bake)
+
+
+def compatible_panels():
+    """Blender's own render panels that list their engines (``COMPAT_ENGINES``) and apply here."""
+    names = ("RENDER_PT_color_management", "RENDER_PT_color_management_curves",
+             "RENDER_PT_color_management_display_settings")
     return [getattr(bpy.types, n) for n in names if hasattr(bpy.types, n)]
 
 
 def register():
-    bpy.utils.register_class(HLP_RenderEngine)
+    for cls in classes:
+        bpy.utils.register_class(cls)
     for panel in compatible_panels():
         engines = getattr(panel, "COMPAT_ENGINES", None)
         if isinstance(engines, set):
             engines.add(ENGINE_ID)
+    if hasattr(bpy.types, "RENDER_PT_context"):
+        bpy.types.RENDER_PT_context.append(draw_render_context)
 
 
 def unregister():
+    if hasattr(bpy.types, "RENDER_PT_context"):
+        bpy.types.RENDER_PT_context.remove(draw_render_context)
     for panel in compatible_panels():
         engines = getattr(panel, "COMPAT_ENGINES", None)
         if isinstance(engines, set):
             engines.discard(ENGINE_ID)
-    if getattr(HLP_RenderEngine, "is_registered", True):
-        bpy.utils.unregister_class(HLP_RenderEngine)
+    for cls in reversed(classes):
+        if getattr(cls, "is_registered", True):
+            bpy.utils.unregister_class(cls)

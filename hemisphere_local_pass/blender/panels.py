@@ -25,6 +25,10 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
     bl_label = "Hemisphere Local Pass"
     bl_options = {'DEFAULT_CLOSED'}
 
+    @classmethod
+    def poll(cls, context):  # with the engine active its own panels show the settings (engine.py)
+        return super().poll(context) and getattr(context, "engine", None) != "HEMISPHERE_LOCAL_PASS"
+
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
@@ -48,3 +52,4 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
             col.prop(settings, "output_path")
 
         layout.operator(HLP_OT_render_local_pass.bl_idname, icon='RENDER_STILL')
+        layout.operator("hlp.bake_vertex_colours", icon='VPAINT_HLT')

@@ -39,12 +39,31 @@ def build_box(resolution=12):
     return bpy.context.scene
 
 
+def read_multilayer(path) -> dict:
+    """{"Layer.Pass.C": (H, W) top row first} of a multilayer EXR: with the OpenEXR package (the
+    extension's wheel; Blender 5 writes multi-part files), else our reader (single-part, uncompressed)."""
+    try:
+        import OpenEXR
+    except ImportError:
+        from hemisphere_local_pass.blender.outputs import _read_plain_exr
+
+        return _read_plain_exr(path)[0]
+    out = {}
+    with OpenEXR.File(path, separate_channels=True) as f:
+        for part in f.parts:
+            prefix = part.name() if callable(getattr(part, "name", None)) else getattr(part, "name", "")
+            for name, channel in part.channels.items():
+                full = name if name.count(".") >= 2 or not prefix else f"{prefix}.{name}"
+                out[full] = np.array(channel.pixels)
+    return out
+
+
 def render_exr(scene, path):
     """Render with the engine into an uncompressed 32-bit multilayer EXR -> {channel: (H, W) row 0 at the bottom}."""
-    from hemisphere_local_pass.blender.outputs import _read_plain_exr
-
     scene.render.engine = ENGINE_ID
     settings = scene.render.image_settings
+    if hasattr(settings, "media_type"):  # Blender 5.0+: multilayer is a media type
+        settings.media_type = "MULTI_LAYER_IMAGE"
     settings.file_format = "OPEN_EXR_MULTILAYER"
     settings.exr_codec = "NONE"
     settings.color_depth = "32"
@@ -52,7 +71,7 @@ def render_exr(scene, path):
     scene.render.use_file_extension = False
     assert bpy.ops.render.render(write_still=True) == {'FINISHED'}
     assert os.path.isfile(path), "write_still wrote nothing"
-    chans, _meta = _read_plain_exr(str(path))
+    chans = read_multilayer(str(path))
     layer = scene.view_layers[0].name
     return {name[len(layer) + 1:]: c[::-1].astype(np.float64) for name, c in chans.items()}
 
