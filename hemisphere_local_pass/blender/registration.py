@@ -7,7 +7,7 @@ safe to call repeatedly (register/unregister/register/unregister).
 
 import bpy
 
-from . import cli, engine, modal, operators, panels, props
+from . import cli, engine, inspector, modal, operators, panels, props
 
 __all__ = ["classes", "register", "unregister"]
 
@@ -18,7 +18,7 @@ classes = (
 )
 
 #: Modules with their own ``register()`` / ``unregister()`` (after ``classes``, undone before them).
-modules = (engine, modal)
+modules = (engine, modal, inspector)
 
 #: Handle returned by ``bpy.utils.register_cli_command`` (None when not registered / Blender < 4.2).
 _cli_handle = None
