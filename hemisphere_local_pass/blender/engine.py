@@ -269,12 +269,12 @@ class HLP_PT_engine_settings(HLP_EngineButtonsPanel, bpy.types.Panel):
         col = layout.column()
         col.prop(settings, "attribute", text="Radiosity")
         col.prop(settings, "missing_attribute", text="Missing")
-        col.prop(settings, "double_sided")
-        col = layout.column(heading="Receiver")
-        col.prop(settings, "reflectivity_attribute", text="Reflectivity")
+        col.prop(settings, "double_sided", text="Two-Sided")
+        col = layout.column(heading="Receiver")  # short labels: they fit the default editor width
+        col.prop(settings, "reflectivity_attribute", text="Albedo")
         col.prop(settings, "emission_attribute", text="Emission")
         col = layout.column()
-        col.prop(settings, "samples", text="Supersampling")
+        col.prop(settings, "samples", text="Samples")
         for prop, label in _OPTIONAL:
             if hasattr(settings, prop):
                 col.prop(settings, prop, text=label)
@@ -300,10 +300,9 @@ def draw_render_context(self, context):
     found without scrolling (the full panel is at the end of the tab)."""
     if context.engine == ENGINE_ID or not hasattr(context.scene, "hlp_settings"):
         return
-    row = self.layout.row(align=True)
-    row.label(text="Local Pass", icon='LIGHT_HEMI')
-    row.operator("hlp.render_local_pass", text="Render", icon='RENDER_STILL')
-    row.operator("hlp.bake_vertex_colours", text="Bake", icon='VPAINT_HLT')
+    split = self.layout.split(factor=0.6, align=True)
+    split.operator("hlp.render_local_pass", text="Local Pass", icon='RENDER_STILL')
+    split.operator("hlp.bake_vertex_colours", text="Bake", icon='VPAINT_HLT')
 
 
 classes = (HLP_RenderEngine, HLP_PT_engine_settings, HLP_PT_engine_bake)

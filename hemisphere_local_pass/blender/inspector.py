@@ -149,8 +149,8 @@ def _batches(ins):
         for pos, colour in ((ins.disc_tris, ins.disc_colours), (ins.hemisphere_tris, ins.hemisphere_colours)):
             out.append(("tris", smooth, batch_for_shader(smooth, 'TRIS', {"pos": pos, "color": colour}), None, None))
     for arr, colour, width, xray in ((ins.frame_lines, (1.0, 1.0, 1.0, 0.6), 1.0, False),
-                                     (ins.hemisphere_lines, (0.05, 0.05, 0.05, 0.9), 1.5, False),
-                                     (ins.disc_lines, (0.05, 0.05, 0.05, 0.9), 1.5, False),
+                                     (ins.hemisphere_lines, (0.0, 0.0, 0.0, 0.5), 1.0, False),
+                                     (ins.disc_lines, (0.0, 0.0, 0.0, 0.5), 1.0, False),
                                      (ins.top_lines, (1.0, 0.55, 0.0, 1.0), 3.0, True)):
         if len(arr):
             out.append(("lines", line, batch_for_shader(line, 'LINES', {"pos": arr}), colour, (width, xray)))

@@ -124,10 +124,14 @@ def false_colour(value: np.ndarray) -> np.ndarray:
 
 
 def _display(rgb: np.ndarray) -> np.ndarray:
-    """Linear radiance -> display RGB in [0, 1] (scaled by the brightest, sRGB-ish gamma)."""
-    peak = float(np.max(rgb)) if rgb.size else 0.0
-    x = np.clip(rgb / peak, 0.0, 1.0) if peak > 0 else np.zeros_like(rgb)
-    return x ** (1 / 2.2)
+    """Linear radiance (n, 3) -> display RGB in [0, 1]: exposed so the median fragment is mid-grey,
+    Reinhard's x / (1 + x) for the bright emitters, sRGB-ish gamma."""
+    lum = rgb.mean(axis=1) if rgb.size else np.zeros(0)
+    mid = float(np.median(lum[lum > 0])) if (lum > 0).any() else 0.0
+    if mid <= 0:
+        return np.zeros_like(rgb)
+    x = np.maximum(rgb, 0.0) / mid
+    return (x / (1.0 + x)) ** (1 / 2.2)
 
 
 def inspect_point(scene, point, normal, *, radius: float, reflectivity=(0.8, 0.8, 0.8), emission=(0.0, 0.0, 0.0),

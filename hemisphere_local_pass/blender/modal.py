@@ -248,7 +248,7 @@ def tick(operator, context, event) -> set:
         operator.report({'WARNING'}, f"Local pass cancelled after {run.done:,} of {run.total:,} points; "
                                      "the scene is unchanged")
         return {'CANCELLED'}
-    if event.type != 'TIMER' or event.timer is not operator._hlp_timer:
+    if event.type != 'TIMER':  # (Event has no .timer before 4.x: any timer tick does one slice)
         return {'PASS_THROUGH'} if event.type in _NAVIGATION else {'RUNNING_MODAL'}
     try:
         finished = run.advance()
@@ -256,9 +256,10 @@ def tick(operator, context, event) -> set:
         _stop(operator, context)
         operator.report({'WARNING'}, "Local pass cancelled")
         return {'CANCELLED'}
-    except (ValueError, OSError, RuntimeError) as ex:
+    except Exception as ex:  # noqa: BLE001 - a modal handler must never be left running on an error
         _stop(operator, context)
-        operator.report({'ERROR'}, str(ex))
+        kind = "" if isinstance(ex, (ValueError, OSError, RuntimeError)) else f"{type(ex).__name__}: "
+        operator.report({'ERROR'}, f"{kind}{ex}")
         return {'CANCELLED'}
     wm = context.window_manager
     wm.hlp_progress = 100.0 * run.fraction
@@ -267,8 +268,7 @@ def tick(operator, context, event) -> set:
         _stop(operator, context)
         finish(operator, context, run.report)
         return {'FINISHED'}
-    _set_status(context, run.text())
-    _redraw_all(context)
+    _set_status(context, run.text())  # redraws the status bar only (not every editor: software GL is slow)
     return {'RUNNING_MODAL'}
 
 
