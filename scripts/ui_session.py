@@ -238,6 +238,16 @@ def session():
         xdotool("click", 1)
         yield 0.5
         xdotool("mousemove", sx, sy)
+    # widen the sidebar as a user would: drag its left edge 160 px to the left
+    ex, ey = to_screen(ui.x + 2, ui.y + ui.height // 2)
+    xdotool("mousemove", ex, ey)
+    xdotool("mousedown", 1)
+    for step in range(1, 9):
+        xdotool("mousemove", ex - 20 * step, ey)
+        yield 0.05
+    xdotool("mouseup", 1)
+    yield 0.5
+    xdotool("mousemove", sx, sy)
     yield 0.5
     before_png = shot("ui_before_inspect.png")
     with bpy.context.temp_override(window=win, area=view, region=region):
@@ -267,6 +277,12 @@ def session():
         panel_draws_at_click=panel_draws, changed_pixels_near_point=near, changed_pixels=int(changed.sum()),
         point_pixel=[float(wx), float(wy)],
         changed_centroid=[float(xs.mean() + region.x), float(ys.mean() + region.y)] if len(xs) else None)
+    bpy.context.window_manager.hlp_inspector_colour = 'FORM_FACTOR'  # re-inspects at the same point
+    yield 1.0
+    shot("ui_inspector_form_factor.png")
+    recoloured = inspector.State.inspection
+    log("inspector_recoloured", same_point=bool(np.allclose(recoloured.point, ins.point, atol=1e-9)),
+        same_sum=recoloured.form_factor_sum == ins.form_factor_sum)
     xdotool("key", "Escape")
     left = yield from wait(lambda: inspector.State.inspection is None, 10, 0.1)
     log("inspector_left", cleared=left, handlers=len(inspector.State.handles))

@@ -21,8 +21,8 @@ from bpy.app.handlers import persistent
 
 __all__ = ["HLP_OT_inspect_form_factors", "HLP_PT_inspector", "State", "inspect_ray", "register", "unregister"]
 
-#: Rows shown in the sidebar list.
-LIST_ROWS = 12
+#: Polygons shown in the sidebar list.
+LIST_ROWS = 8
 
 
 class State:
@@ -311,20 +311,21 @@ class HLP_PT_inspector(bpy.types.Panel):
             return
         box = layout.box()
         col = box.column(align=True)
-        col.label(text=f"ΣF = {ins.form_factor_sum:.9f}   ({ins.fragments} fragments)")
-        col.label(text="H = " + " ".join(f"{v:.6g}" for v in ins.irradiance))
-        col.label(text="L = " + " ".join(f"{v:.6g}" for v in ins.radiance))
+        col.label(text=f"ΣF = {ins.form_factor_sum:.9f}")
+        col.label(text=f"{ins.fragments} visible fragments, {len(ins.rows)} polygons")
+        col.label(text="H = " + "  ".join(f"{v:.4g}" for v in ins.irradiance))
+        col.label(text="L = " + "  ".join(f"{v:.4g}" for v in ins.radiance))
         exported = State.exported
-        grid = layout.grid_flow(row_major=True, columns=5, even_columns=False, align=True)
-        for head in ("Object", "Polygon", "F", "L·F", "Share"):
-            grid.label(text=head)
+        # two lines per polygon: the sidebar's default width holds three numbers, not five columns
+        col = layout.column(align=True)
         for row in ins.rows[:LIST_ROWS]:
             i = row.polygon
-            grid.label(text=exported.objects[int(exported.polygon_object[i])])
-            grid.label(text=str(int(exported.polygon_index[i])))
-            grid.label(text=f"{row.form_factor:.6f}")
-            grid.label(text=f"{row.radiance_ff.mean():.4g}")
-            grid.label(text=f"{100 * row.share:.1f} %")
+            sub = col.box().column(align=True)
+            sub.label(text=f"{exported.objects[int(exported.polygon_object[i])]}  polygon {int(exported.polygon_index[i])}")
+            line = sub.row(align=True)
+            line.label(text=f"F {row.form_factor:.5f}")
+            line.label(text=f"L·F {row.radiance_ff.mean():.3g}")
+            line.label(text=f"{100 * row.share:.1f}% of H")
         if len(ins.rows) > LIST_ROWS:
             layout.label(text=f"... {len(ins.rows) - LIST_ROWS} more polygons")
 

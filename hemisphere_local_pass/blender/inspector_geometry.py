@@ -228,4 +228,8 @@ def inspect_point(scene, point, normal, *, radius: float, reflectivity=(0.8, 0.8
             lines.append(np.stack([v, np.roll(v, -1, axis=0)], axis=1).reshape(-1, 3))
     if lines:
         out.top_lines = np.concatenate(lines).astype(np.float32)
+    for name in ("hemisphere_tris", "hemisphere_colours", "hemisphere_lines", "disc_tris", "disc_colours", "disc_lines",
+                 "frame_lines", "top_lines"):
+        # GPU vertex buffers read the raw buffer: C order (concatenated broadcasts can come out in F order)
+        setattr(out, name, np.ascontiguousarray(getattr(out, name), dtype=np.float32))
     return out

@@ -76,6 +76,9 @@ def test_drawn_arrays(box_scene):
         ins = inspect_point(scene, p, n, radius=r, colour_by=mode, top=3)
         assert ins.hemisphere_tris.shape[0] % 3 == 0 and ins.hemisphere_tris.shape[1] == 3
         assert ins.hemisphere_colours.shape == (len(ins.hemisphere_tris), 4)
+        for arr in (ins.hemisphere_tris, ins.hemisphere_colours, ins.hemisphere_lines, ins.disc_tris,
+                    ins.disc_colours, ins.disc_lines, ins.frame_lines, ins.top_lines):
+            assert arr.dtype == np.float32 and arr.flags["C_CONTIGUOUS"]  # what a GPU vertex buffer reads
         assert ((ins.hemisphere_colours >= 0) & (ins.hemisphere_colours <= 1)).all()
         assert ins.hemisphere_lines.shape[0] % 2 == 0
         d = np.linalg.norm(ins.hemisphere_lines - (p + 1e-3 * r * n), axis=1)  # outlines on the sphere
