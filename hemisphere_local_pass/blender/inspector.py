@@ -321,7 +321,8 @@ class HLP_PT_inspector(bpy.types.Panel):
         for row in ins.rows[:LIST_ROWS]:
             i = row.polygon
             sub = col.box().column(align=True)
-            sub.label(text=f"{exported.objects[int(exported.polygon_object[i])]}  polygon {int(exported.polygon_index[i])}")
+            obj, index = exported.objects[int(exported.polygon_object[i])], int(exported.polygon_index[i])
+            sub.label(text=f"{obj}  polygon {index}")
             line = sub.row(align=True)
             line.label(text=f"F {row.form_factor:.5f}")
             line.label(text=f"L·F {row.radiance_ff.mean():.3g}")
