@@ -70,6 +70,13 @@ def finish(ok, error=None):
     if ARGS.result:
         with open(ARGS.result, "w") as fh:
             json.dump(RESULT, fh, indent=1, default=str)
+    if ok:
+        # Blender's exit code is G.is_break, which any Esc key press sets (here: cancelling the bake,
+        # leaving the inspector); starting a render clears it. A 2 x 2 frame of the engine does that.
+        scene = bpy.context.scene
+        scene.render.resolution_x = scene.render.resolution_y = 2
+        scene.render.engine = 'HEMISPHERE_LOCAL_PASS'
+        bpy.ops.render.render()
     bpy.ops.wm.quit_blender()
 
 
@@ -89,7 +96,10 @@ def shot(name):
 
 
 def xdotool(*args):
-    subprocess.run(["xdotool", *[str(a) for a in args]], check=True)
+    """Real X input (XTEST), as a user's; its messages are kept off Blender's stderr."""
+    done = subprocess.run(["xdotool", *[str(a) for a in args]], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"xdotool {' '.join(map(str, args))}: {done.stderr.strip()}")
 
 
 def to_screen(wx, wy):
