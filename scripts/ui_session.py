@@ -287,6 +287,17 @@ def session():
         panel_draws_at_click=panel_draws, changed_pixels_near_point=near, changed_pixels=int(changed.sum()),
         point_pixel=[float(wx), float(wy)],
         changed_centroid=[float(xs.mean() + region.x), float(ys.mean() + region.y)] if len(xs) else None)
+    # drag: the point follows the mouse live (press, move in steps, release)
+    xdotool("mousedown", 1)
+    for step in range(1, 5):
+        xdotool("mousemove", sx + 8 * step, sy)
+        yield 0.2
+    xdotool("mouseup", 1)
+    yield 0.5
+    moved = inspector.State.inspection
+    log("inspector_drag", moved=float(np.linalg.norm(moved.point - ins.point)), on_floor=bool(moved.point[2] == 0.0),
+        towards_x=bool(moved.point[0] > ins.point[0]))
+    ins = moved
     bpy.context.window_manager.hlp_inspector_colour = 'FORM_FACTOR'  # re-inspects at the same point
     yield 1.0
     shot("ui_inspector_form_factor.png")

@@ -312,7 +312,8 @@ class HLP_PT_inspector(bpy.types.Panel):
         box = layout.box()
         col = box.column(align=True)
         col.label(text=f"ΣF = {ins.form_factor_sum:.9f}")
-        col.label(text=f"{ins.fragments} visible fragments, {len(ins.rows)} polygons")
+        col.label(text=f"{ins.fragments} fragments, {len(ins.rows)} polygons")
+        col.label(text="% = share of H, largest first")
         col.label(text="H = " + "  ".join(f"{v:.4g}" for v in ins.irradiance))
         col.label(text="L = " + "  ".join(f"{v:.4g}" for v in ins.radiance))
         exported = State.exported
@@ -322,11 +323,12 @@ class HLP_PT_inspector(bpy.types.Panel):
             i = row.polygon
             sub = col.box().column(align=True)
             obj, index = exported.objects[int(exported.polygon_object[i])], int(exported.polygon_index[i])
-            sub.label(text=f"{obj}  polygon {index}")
+            line = sub.split(factor=0.7)
+            line.label(text=f"{obj}  polygon {index}")
+            line.label(text=f"{100 * row.share:.1f}%")
             line = sub.row(align=True)
             line.label(text=f"F {row.form_factor:.5f}")
             line.label(text=f"L·F {row.radiance_ff.mean():.3g}")
-            line.label(text=f"{100 * row.share:.1f}% of H")
         if len(ins.rows) > LIST_ROWS:
             layout.label(text=f"... {len(ins.rows) - LIST_ROWS} more polygons")
 

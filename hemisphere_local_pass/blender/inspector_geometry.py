@@ -47,7 +47,7 @@ class Inspection:
 
     Attributes:
         point, normal: (3,) receiver; radius: r of the drawn hemisphere.
-        rows: contributing input polygons, largest F first.
+        rows: input polygons with F > 0, largest share of H first (then largest F).
         form_factor_sum: sum F over every fragment; irradiance: (3,) H from ``core.irradiance``;
             radiance: (3,) L = E + rho / pi H (eq. 5); fragments: number of visible fragments.
         hemisphere_tris / hemisphere_colours: (3T, 3) / (3T, 4) float32 filled fragments.
@@ -144,7 +144,7 @@ def inspect_point(scene, point, normal, *, radius: float, reflectivity=(0.8, 0.8
         labels: ``labels(i) -> str`` naming input polygon i (default "polygon i").
         colour_by: "RADIANCE" (the source polygon's radiance) or "FORM_FACTOR" (false colour by F
             relative to the largest fragment).
-        top: how many input polygons to outline in the scene.
+        top: how many input polygons (the first rows: the largest shares of H) to outline in the scene.
     """
     from ..core import irradiance, project_point
 
@@ -171,11 +171,11 @@ def inspect_point(scene, point, normal, *, radius: float, reflectivity=(0.8, 0.8
     total = lf.sum(axis=0)
     shares = np.where(total > 0, lf / np.where(total > 0, total, 1.0), 0.0)
     chans = total > 0
-    order = np.argsort(-ff, kind="stable")
+    share = shares[:, chans].mean(axis=1) if chans.any() else np.zeros(n_in)  # (n_in,)
+    order = np.lexsort((-ff, -share))  # largest share of H first, then largest F
     name = labels if labels is not None else (lambda i: f"polygon {i}")
     for i in order[ff[order] > 0]:
-        share = float(shares[i, chans].mean()) if chans.any() else 0.0
-        out.rows.append(Row(int(i), name(int(i)), float(ff[i]), lf[i].copy(), share))
+        out.rows.append(Row(int(i), name(int(i)), float(ff[i]), lf[i].copy(), float(share[i])))
 
     # geometry: hemisphere fragments, Nusselt disc, outlines
     r = float(radius)

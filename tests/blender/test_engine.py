@@ -170,3 +170,14 @@ def test_register_unregister_twice_leaves_no_engine(extension):
     finally:
         if not hasattr(bpy.types.Scene, "hlp_settings"):
             sys.modules[MODULE].register()
+
+
+def test_bands_cover_the_window_once(hlp):
+    engine = hlp["engine"]
+    for window, band in (((0, 0, 7, 5), 14), ((2, 3, 12, 13), 4096), ((0, 0, 3, 9), 1)):
+        bands = engine.band_windows(window, band)
+        assert bands[0][3] == window[3] and bands[-1][1] == window[1]  # from the top row down
+        rows = [y for b in bands for y in range(b[1], b[3])]
+        assert sorted(rows) == list(range(window[1], window[3])) and len(rows) == len(set(rows))
+        assert all(b[0] == window[0] and b[2] == window[2] for b in bands)
+        assert all((b[3] - b[1]) * (window[2] - window[0]) <= max(band, window[2] - window[0]) for b in bands)

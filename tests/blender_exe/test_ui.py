@@ -70,6 +70,8 @@ def test_real_window_panels_modal_job_esc_and_inspector(blender, xvfb_run, blend
     assert ins["form_factor_sum"] == ins["core_form_factor_sum"] and ins["irradiance"] == ins["core_irradiance"]
     assert ins["panel_draws"] > ins["panel_draws_at_click"] >= 0, "the sidebar list must draw after the click"
     assert ins["changed_pixels_near_point"] > 300, ins  # the overlay is drawn where the point projects
+    drag = info["inspector_drag"]
+    assert drag["moved"] > 0.01 and drag["on_floor"] and drag["towards_x"], drag  # dragging moves it live
     assert info["inspector_recoloured"] == {"same_point": True, "same_sum": True}
     assert info["inspector_left"] == {"cleared": True, "handlers": 0}
     for name in ("ui_engine_panels", "ui_other_engine", "ui_progress", "ui_result", "ui_inspector"):

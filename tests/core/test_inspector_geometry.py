@@ -49,7 +49,9 @@ def test_list_agrees_with_the_core(box_scene):
     for i, row in rows.items():
         assert row.form_factor == proj.polygon_form_factors[i]
         assert row.form_factor == pytest.approx(ff[i], rel=1e-12, abs=1e-15)
-    assert [r.form_factor for r in ins.rows] == sorted((r.form_factor for r in ins.rows), reverse=True)
+    keys = [(r.share, r.form_factor) for r in ins.rows]
+    assert keys == sorted(keys, reverse=True)  # the largest contributions to H first
+    assert box.names[ins.rows[0].polygon] == "light"  # the emitter dominates H
     # eq. 3: H = pi sum L_i F_i over the lit polygons, the list's shares sum to 1
     lf = np.sum([r.radiance_ff for r in ins.rows], axis=0)
     np.testing.assert_allclose(np.pi * lf, h, rtol=1e-12)
