@@ -229,6 +229,25 @@ def session():
     log("esc", running_before=ok, done_at_esc=done_at_esc, total=total, cancelled=cancelled,
         unchanged=mesh_state(scene) == before)
 
+    # 3b. F12 with the engine, Esc mid-render: test_break() stops it, the finished bands stay
+    from hemisphere_local_pass.blender import engine
+
+    bpy.context.preferences.view.render_display_type = 'NONE'  # keep the layout (no render window)
+    scene.render.engine = 'HEMISPHERE_LOCAL_PASS'
+    scene.render.resolution_x = scene.render.resolution_y = 3 * ARGS.resolution
+    engine.BAND_PIXELS = 4 * ARGS.resolution * 3  # 4 rows per band: several partial results
+    engine.status.clear()
+    with bpy.context.temp_override(window=win, area=view):
+        bpy.ops.render.render('INVOKE_DEFAULT')
+    ok = yield from wait(lambda: engine.status.get("done", 0) > 0, 120, 0.05)
+    xdotool("mousemove", cx, cy)
+    t_esc = time.time()
+    xdotool("key", "Escape")
+    stopped = yield from wait(lambda: not bpy.app.is_job_running('RENDER'), 60, 0.02)
+    log("f12_esc", started=ok, stopped=stopped, latency=time.time() - t_esc, **engine.status)
+    scene.render.engine = 'BLENDER_EEVEE'
+    scene.render.resolution_x = scene.render.resolution_y = ARGS.resolution
+
     # 4. the inspector at a known point
     for ob in scene.objects:
         ob.select_set(False)

@@ -51,15 +51,21 @@ PASSES = (
 #: Pixels per band (a band is whole rows): small enough that partial results come every second or so.
 BAND_PIXELS = 4096
 
+#: The running / last render, for scripts and tests: ``done``, ``total`` points, ``cancelled``,
+#: ``seconds``, ``bands`` finished of ``n_bands`` (updated as the render goes).
+status: dict = {}
+
 #: Keys of the job's layers (``JobReport.result``) that fill Error Estimate / Exact Samples once the
 #: adaptive job provides them; absent keys mean an exact job (error 0, every sample exact).
 _ERROR_KEYS = ("error_estimate", "error")
 _EXACT_KEYS = ("exact_samples", "exact")
 
 
-def band_windows(window, band_pixels: int = BAND_PIXELS) -> list:
+def band_windows(window, band_pixels: int | None = None) -> list:
     """Row bands ``(x0, y0, x1, y1)`` of ``window`` from the top row down, each about
-    ``band_pixels`` pixels (at least one row), covering the window exactly once."""
+    ``band_pixels`` (default ``BAND_PIXELS``) pixels (at least one row), covering the window exactly once."""
+    if band_pixels is None:
+        band_pixels = BAND_PIXELS  # read at call time: scripts and tests may change it
     x0, y0, x1, y1 = window
     rows = max(1, band_pixels // max(1, x1 - x0))
     bands = []
@@ -140,6 +146,7 @@ class _Stats:
         if not force and now - self.last < 0.25:
             return
         self.last = now
+        status.update(done=int(done), total=self.total)
         elapsed = now - self.start
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else math.nan
@@ -205,9 +212,12 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
         points = 0
         worst = 0.0
         start = time.perf_counter()
+        status.clear()
+        status.update(done=0, total=n * k * k, cancelled=False, bands=0, n_bands=len(bands), seconds=0.0)
         try:
             for band in bands:
                 if self.test_break():
+                    status["cancelled"] = True
                     break
                 size_b = (band[2] - band[0]) * (band[3] - band[1]) * k * k
                 try:
@@ -215,7 +225,8 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
                                             preview=False, samples=k, exported=exported, depsgraph=depsgraph,
                                             view_layer=view_layer, progress=stats.band(size_b),
                                             cancel=self.test_break, **kwargs)
-                except Cancelled:
+                except Cancelled:  # Esc: keep the finished bands
+                    status["cancelled"] = True
                     break
                 except ValueError as ex:
                     self._fail(str(ex))
@@ -232,8 +243,10 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
                         targets[name].rect = rects[name]
                 self.update_result(result)  # the finished band appears in the Image Editor
                 stats.finish_band(size_b)
+                status["bands"] += 1
         finally:
             self.end_result(result)
+            status["seconds"] = time.perf_counter() - start
         seconds = time.perf_counter() - start
         self.update_stats("Hemisphere Local Pass",
                           f"{points:,} points in {seconds:.1f} s, max |sum F - 1| = {worst:.2e}")

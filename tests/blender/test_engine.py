@@ -108,6 +108,9 @@ def test_render_equals_run_local_pass(hlp, tmp_path, monkeypatch):
     ob.pass_index = 7
     monkeypatch.setattr(hlp["engine"], "BAND_PIXELS", 40)  # 3 rows per band: several partial results
     passes = render_exr(scene, tmp_path / "frame.exr")
+    status = hlp["engine"].status
+    assert status["n_bands"] == 4 and status["bands"] == 4 and not status["cancelled"], status
+    assert status["done"] == status["total"] == 144, status
     for name in EXTRA_PASSES:
         assert any(c.startswith(name + ".") for c in passes), (name, sorted(passes))
     report = hlp["job"].run_local_pass(scene, output=None, image=False)

@@ -64,6 +64,10 @@ def test_real_window_panels_modal_job_esc_and_inspector(blender, xvfb_run, blend
     assert esc["running_before"] and esc["cancelled"] and esc["unchanged"], esc
     assert esc["done_at_esc"] < esc["total"], esc
 
+    f12 = info["f12_esc"]  # F12, then Esc: test_break() ends the render early, the finished bands kept
+    assert f12["started"] and f12["stopped"] and f12["cancelled"], f12
+    assert f12["done"] < f12["total"] and f12["bands"] < f12["n_bands"], f12
+
     ins = info["inspector"]
     assert ins["snapped_error"] < 0.02 and ins["normal"] == [0.0, 0.0, 1.0] and ins["point"][2] == 0.0, ins
     assert ins["rows_equal_core"] and ins["rows"] > 10, ins
