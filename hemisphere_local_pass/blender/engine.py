@@ -28,6 +28,7 @@ Esc stops within a fraction of a second and keeps the finished bands.
 from __future__ import annotations
 
 import math
+import sys
 import time
 
 import bpy
@@ -47,6 +48,11 @@ PASSES = (
     ("Exact Samples", "X", 'VALUE'),
     ("IndexOB", "X", 'VALUE'),
 )
+
+#: GIL switch interval (s) while a render runs: F12 renders in a thread that holds the GIL for Python
+#: code, and the window's Python drawing (panels, status bar) waits up to one interval per call; the
+#: default 5 ms made Esc take seconds to reach test_break() in a busy window.
+RENDER_SWITCH_INTERVAL = 5e-4
 
 #: Pixels per band (a band is whole rows): small enough that partial results come every second or so.
 BAND_PIXELS = 4096
@@ -214,6 +220,8 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
         start = time.perf_counter()
         status.clear()
         status.update(done=0, total=n * k * k, cancelled=False, bands=0, n_bands=len(bands), seconds=0.0)
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(switch, RENDER_SWITCH_INTERVAL))
         try:
             for band in bands:
                 if self.test_break():
@@ -245,6 +253,7 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
                 stats.finish_band(size_b)
                 status["bands"] += 1
         finally:
+            sys.setswitchinterval(switch)
             self.end_result(result)
             status["seconds"] = time.perf_counter() - start
         seconds = time.perf_counter() - start
