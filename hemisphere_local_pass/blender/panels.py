@@ -38,12 +38,12 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
 
         col = layout.column()
         col.prop(settings, "mode")
-        col.prop(settings, "attribute")
-        col.prop(settings, "missing_attribute")
-        col.prop(settings, "double_sided")
+        col.prop(settings, "attribute", text="Radiosity")  # short labels fit the default editor width
+        col.prop(settings, "missing_attribute", text="Missing")
+        col.prop(settings, "double_sided", text="Two-Sided")
 
         col = layout.column(heading="Receiver")
-        col.prop(settings, "reflectivity_attribute", text="Reflectivity")
+        col.prop(settings, "reflectivity_attribute", text="Albedo")
         col.prop(settings, "emission_attribute", text="Emission")
 
         if settings.mode == 'PIXELS':
