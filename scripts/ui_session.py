@@ -241,10 +241,13 @@ def session():
         bpy.ops.render.render('INVOKE_DEFAULT')
     ok = yield from wait(lambda: engine.status.get("done", 0) > 0, 120, 0.05)
     xdotool("mousemove", cx, cy)
-    t_esc = time.time()
+    t_esc = time.perf_counter()
     xdotool("key", "Escape")
     stopped = yield from wait(lambda: not bpy.app.is_job_running('RENDER'), 60, 0.02)
-    log("f12_esc", started=ok, stopped=stopped, latency=time.time() - t_esc, **engine.status)
+    # latency: Esc pressed -> test_break() seen by the render thread (engine.status["cancelled_at"]);
+    # job_seen: -> this main-thread timer saw the render job gone
+    log("f12_esc", started=ok, stopped=stopped, job_seen=time.perf_counter() - t_esc,
+        latency=engine.status.get("cancelled_at", float("nan")) - t_esc, **engine.status)
     scene.render.engine = 'BLENDER_EEVEE'
     scene.render.resolution_x = scene.render.resolution_y = ARGS.resolution
 

@@ -28,7 +28,6 @@ Esc stops within a fraction of a second and keeps the finished bands.
 from __future__ import annotations
 
 import math
-import sys
 import time
 
 import bpy
@@ -49,16 +48,12 @@ PASSES = (
     ("IndexOB", "X", 'VALUE'),
 )
 
-#: GIL switch interval (s) while a render runs: F12 renders in a thread that holds the GIL for Python
-#: code, and the window's Python drawing (panels, status bar) waits up to one interval per call; the
-#: default 5 ms made Esc take seconds to reach test_break() in a busy window.
-RENDER_SWITCH_INTERVAL = 5e-4
-
 #: Pixels per band (a band is whole rows): small enough that partial results come every second or so.
 BAND_PIXELS = 4096
 
 #: The running / last render, for scripts and tests: ``done``, ``total`` points, ``cancelled``,
-#: ``seconds``, ``bands`` finished of ``n_bands`` (updated as the render goes).
+#: ``seconds``, ``bands`` finished of ``n_bands``, ``cancelled_at`` (``time.perf_counter()`` when
+#: test_break() stopped it) (updated as the render goes).
 status: dict = {}
 
 #: Keys of the job's layers (``JobReport.result``) that fill Error Estimate / Exact Samples once the
@@ -220,12 +215,10 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
         start = time.perf_counter()
         status.clear()
         status.update(done=0, total=n * k * k, cancelled=False, bands=0, n_bands=len(bands), seconds=0.0)
-        switch = sys.getswitchinterval()
-        sys.setswitchinterval(min(switch, RENDER_SWITCH_INTERVAL))
         try:
             for band in bands:
                 if self.test_break():
-                    status["cancelled"] = True
+                    status.update(cancelled=True, cancelled_at=time.perf_counter())
                     break
                 size_b = (band[2] - band[0]) * (band[3] - band[1]) * k * k
                 try:
@@ -234,7 +227,7 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
                                             view_layer=view_layer, progress=stats.band(size_b),
                                             cancel=self.test_break, **kwargs)
                 except Cancelled:  # Esc: keep the finished bands
-                    status["cancelled"] = True
+                    status.update(cancelled=True, cancelled_at=time.perf_counter())
                     break
                 except ValueError as ex:
                     self._fail(str(ex))
@@ -253,7 +246,6 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
                 stats.finish_band(size_b)
                 status["bands"] += 1
         finally:
-            sys.setswitchinterval(switch)
             self.end_result(result)
             status["seconds"] = time.perf_counter() - start
         seconds = time.perf_counter() - start
