@@ -6,7 +6,8 @@ core scene, as the render's camera rays), drag to move it live; Esc or right-cli
 point the overlay draws the arrays of :func:`.inspector_geometry.inspect_point`: the hemisphere
 with every visible fragment filled (source radiance or false colour by F) and outlined, the Nusselt
 analog on the disc in the tangent plane, and the top contributing polygons outlined in the scene.
-The sidebar lists object, polygon, F, L.F and share of H per polygon, with sum F, H and L.
+The sidebar lists object, polygon, F, L.F and share of H per polygon, with sum F, H and L. The
+scene is exported once when the tool starts (restart it after editing the scene).
 
 GPU code lives only in the draw callbacks: shaders are created lazily there (never in background
 mode), with Blender 3.4's ``3D_*`` built-in shader names or 4.x/5.x's unprefixed ones, and every
@@ -262,7 +263,11 @@ class HLP_OT_inspect_form_factors(bpy.types.Operator):
         if event.type in {'ESC', 'RIGHTMOUSE'} and event.value == 'PRESS':
             self._finish(context)
             return {'FINISHED'}
-        xy = self._local(event)
+        try:
+            xy = self._local(event)
+        except ReferenceError:  # the viewport was closed (area joined, screen changed)
+            self._finish(context)
+            return {'CANCELLED'}
         if event.type == 'LEFTMOUSE':
             if event.value == 'PRESS' and xy is not None:
                 self._dragging = True
@@ -277,7 +282,9 @@ class HLP_OT_inspect_form_factors(bpy.types.Operator):
         return {'PASS_THROUGH'}  # navigation, the sidebar, menus
 
     def _finish(self, context):
-        context.workspace.status_text_set(None)
+        workspace = getattr(context, "workspace", None)
+        if workspace is not None:
+            workspace.status_text_set(None)
         State.clear()
 
     def cancel(self, context):
