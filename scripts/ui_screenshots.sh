@@ -29,7 +29,7 @@ m, i = info["modal"], info["inspector"]
 print(f"modal job: {m['summary']}; screenshot at {100 * m['first']['fraction']:.0f} %")
 print(f"inspector at {i['point']}: sum F = {i['form_factor_sum']!r}, {i['rows']} polygons, list == core: {i['rows_equal_core']}")
 PYEOF
-for name in ui_engine_panels ui_other_engine ui_progress ui_result ui_inspector ui_inspector_form_factor; do
+for name in ui_engine_panels ui_other_engine ui_progress ui_result ui_inspector ui_inspector_form_factor ui_baked; do
     cp "$tmp/shots/$name.png" "docs/$name.png"
 done
 echo "ui_screenshots: wrote docs/ui_*.png"

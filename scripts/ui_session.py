@@ -11,10 +11,13 @@ Steps (a generator advanced by ``bpy.app.timers``; input events come from ``xdot
 1. the Render tab with the engine active (its panels), and with EEVEE (the one-line entry at the top);
 2. *Render Local Pass* as a modal job: a screenshot mid-run (status-bar progress), progress and
    redraw counts at two times, the finished image in the Image Editor;
-3. *Bake to Vertex Colours* cancelled with Esc mid-run: the scene unchanged;
+3. *Bake to Vertex Colours* cancelled with Esc mid-run: the scene unchanged; F12 with the engine
+   and Esc mid-render: the render stops early and keeps its finished bands;
 4. the inspector: click (xdotool) on the known floor point ``TARGET``; the snapped point, the list
    against ``core.project_point`` / ``core.irradiance``, the overlay's pixels around the point's
-   projection (screenshot difference); Esc leaves and the overlay is gone.
+   projection (screenshot difference); a drag moves it; Esc leaves and the overlay is gone;
+5. *Bake to Vertex Colours* on the floor, to the end: the result is the active colour attribute and
+   the viewport is in Attribute colour mode.
 
 Writes ``DIR/ui_*.png`` and a JSON summary (``--result``), then quits. Any failure is in the JSON
 (``ok: false``, ``error``).
@@ -329,6 +332,21 @@ def session():
     xdotool("key", "Escape")
     left = yield from wait(lambda: inspector.State.inspection is None, 10, 0.1)
     log("inspector_left", cleared=left, handlers=len(inspector.State.handles))
+
+    # 5. a finished bake is made visible: active colour attribute, viewport in Attribute colour mode
+    floor = bpy.data.objects["Floor"]
+    for ob in scene.objects:
+        ob.select_set(ob is floor)
+    bpy.context.view_layer.objects.active = floor
+    with bpy.context.temp_override(window=win, area=props, region=next(r for r in props.regions if r.type == 'WINDOW')):
+        bpy.ops.hlp.bake_vertex_colours('INVOKE_DEFAULT')
+    baked = yield from wait(lambda: not modal._running, 120, 0.1)
+    yield 0.5
+    shot("ui_baked.png")
+    active = floor.data.color_attributes.active_color
+    log("bake", finished=baked, active=active.name if active is not None else None,
+        color_type=space.shading.color_type, shading=space.shading.type,
+        attributes=sorted(a.name for a in floor.data.attributes if a.name.startswith("hlp_")))
     bpy.types.SpaceView3D.draw_handler_remove(counter, 'WINDOW')
 
 

@@ -78,6 +78,10 @@ def test_real_window_panels_modal_job_esc_and_inspector(blender, xvfb_run, blend
     assert drag["moved"] > 0.01 and drag["on_floor"] and drag["towards_x"], drag  # dragging moves it live
     assert info["inspector_recoloured"] == {"same_point": True, "same_sum": True}
     assert info["inspector_left"] == {"cleared": True, "handlers": 0}
+    bake = info["bake"]
+    assert bake["finished"] and bake["active"] == "hlp_radiance", bake
+    assert bake["shading"] == "SOLID" and bake["color_type"] == "VERTEX", bake
+    assert bake["attributes"] == ["hlp_irradiance", "hlp_radiance"], bake
     for name in ("ui_engine_panels", "ui_other_engine", "ui_progress", "ui_result", "ui_inspector"):
         assert (shots / f"{name}.png").stat().st_size > 10_000, name
     assert_clean(result)
