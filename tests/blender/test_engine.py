@@ -159,6 +159,16 @@ def test_png_through_output_settings_and_bad_input(hlp, tmp_path):
         bpy.ops.render.render(write_still=True)
 
 
+def ours_appended() -> list:
+    """Draw functions of the extension still prepended/appended to Blender's headers and panels."""
+    found = []
+    for cls in (bpy.types.STATUSBAR_HT_header, bpy.types.RENDER_PT_context):
+        for fn in cls._dyn_ui_initialize():
+            if getattr(fn, "__module__", "").startswith(MODULE):
+                found.append(f"{cls.__name__}: {fn.__name__}")
+    return found
+
+
 def test_register_unregister_twice_leaves_no_engine(extension):
     module = extension
     try:
@@ -166,10 +176,14 @@ def test_register_unregister_twice_leaves_no_engine(extension):
             module.unregister()
             assert not engine_available()
             assert not sys.modules[MODULE + ".blender.engine"].HLP_RenderEngine.is_registered
+            assert not ours_appended(), "a draw function of the extension is still appended"
+            assert not hasattr(bpy.types.WindowManager, "hlp_progress")
             for panel in (bpy.types.RENDER_PT_color_management,):
                 assert ENGINE_ID not in panel.COMPAT_ENGINES
             module.register()
             assert engine_available()
+            assert sorted(ours_appended()) == ["RENDER_PT_context: draw_render_context",
+                                               "STATUSBAR_HT_header: draw_status"]
     finally:
         if not hasattr(bpy.types.Scene, "hlp_settings"):
             sys.modules[MODULE].register()
