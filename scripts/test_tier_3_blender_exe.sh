@@ -9,8 +9,8 @@ t_all=$(date +%s)
 
 # blender: the executable; python3-numpy: Debian's Blender uses the system Python 3.11 and its numpy
 # (1.24, which the core supports) but does not depend on it; xvfb + xauth: xvfb-run for the UI test;
-# libgl1-mesa-dri: software OpenGL for the UI.
-APT_PACKAGES=(blender python3-numpy xvfb xauth libgl1-mesa-dri)
+# libgl1-mesa-dri: software OpenGL for the UI; xdotool: real input events (Esc, clicks) in the UI tests.
+APT_PACKAGES=(blender python3-numpy xvfb xauth libgl1-mesa-dri xdotool)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

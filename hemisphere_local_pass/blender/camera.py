@@ -62,8 +62,9 @@ class CameraParams:
         return tuple(getattr(self, f) for f in self.__dataclass_fields__)
 
 
-def camera_params(scene, camera_object=None) -> CameraParams:
-    """Read the camera of ``scene`` (default ``scene.camera``), evaluated (animation, constraints).
+def camera_params(scene, camera_object=None, depsgraph=None) -> CameraParams:
+    """Read the camera of ``scene`` (default ``scene.camera``), evaluated (animation, constraints)
+    in ``depsgraph`` (default: the context's evaluated depsgraph; a render engine passes its own).
 
     Raises ``ValueError`` when the scene has no camera or the camera is panoramic.
     """
@@ -78,7 +79,7 @@ def camera_params(scene, camera_object=None) -> CameraParams:
     try:
         import bpy
 
-        ob_eval = ob.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        ob_eval = ob.evaluated_get(depsgraph if depsgraph is not None else bpy.context.evaluated_depsgraph_get())
         matrix = ob_eval.matrix_world
     except (AttributeError, RuntimeError):  # no context (should not happen), use the stored matrix
         matrix = ob.matrix_world

@@ -36,7 +36,7 @@ import numpy as np
 
 from .interrupts import stops_on_first_sigint
 
-__all__ = ["JobReport", "cli_main", "parse_tile", "run_local_pass", "tile_window"]
+__all__ = ["JobReport", "JobStep", "cli_main", "local_pass_steps", "parse_tile", "run_local_pass", "tile_window"]
 
 #: Receivers per chunk are ``clip(ceil(m / CHUNKS_PER_JOB), MIN_CHUNK, MAX_CHUNK)``: few enough
 #: checkpoint writes, small enough that an interruption loses little.
@@ -109,6 +109,16 @@ class JobReport:
         if self.workers > 1:
             parts.append(f"{self.workers} workers")
         return "Local pass: " + ", ".join(parts)
+
+
+@dataclass
+class JobStep:
+    """What :func:`local_pass_steps` yields after every finished chunk: ``done`` of ``total``
+    receivers (points) evaluated so far. Between two steps nothing of Blender's data is touched, so
+    a modal operator can return to the event loop there (``blender/modal.py``)."""
+
+    done: int
+    total: int
 
 
 # ---------------------------------------------------------------------------------------- helpers
@@ -341,7 +351,7 @@ def _compute(exported, points, normals, limit, *, checkpoint_path, fingerprint, 
             _prepare(exported, points[s0:], normals[s0:], None if limit is None else limit[s0:], progress, cancel)
             _stage(progress, f"computing {m - report.resumed_points} points")
         if workers > 1:
-            _compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel)
+            yield from _compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel)
             return ck
         for c in todo:
             if cancel is not None and cancel():
@@ -353,6 +363,7 @@ def _compute(exported, points, normals, limit, *, checkpoint_path, fingerprint, 
             ck.done[c] = True
             ck.save()
             prog.advance(e - s)
+            yield JobStep(prog.base, m)  # a chunk boundary: the caller may return to Blender's event loop
     except (KeyboardInterrupt, Cancelled):
         report.cancelled = True
         raise
@@ -363,7 +374,8 @@ def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, pro
     """The job's chunks on a pool of ``workers`` processes: each chunk is the same core call as in one
     process (so the same bits), several at once (one parent thread each, which only waits), results
     saved in this thread as they finish. ``progress`` and ``cancel`` run in this thread only (they may
-    touch bpy); cancel, Ctrl-C or an error kill the pool at once."""
+    touch bpy); cancel, Ctrl-C, an error or closing the generator kill the pool at once. A generator:
+    yields a :class:`JobStep` whenever chunks finished (as :func:`_compute`)."""
     import concurrent.futures as cf
     import threading
 
@@ -397,6 +409,8 @@ def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, pro
                 ck.done[c] = True
                 ck.save()
                 prog.advance(e - s)
+            if finished:
+                yield JobStep(prog.base, m)  # chunk boundaries: the caller may return to Blender's event loop
             if cancel is not None and cancel():
                 raise Cancelled("local pass cancelled")
     except BaseException:
@@ -409,12 +423,13 @@ def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, pro
 
 
 # ---------------------------------------------------------------------------------------- pixels
-def _run_pixels(scene, exported, report, *, output, region, tile, resume, samples, progress, cancel, preview, image):
+def _run_pixels(scene, exported, report, *, output, region, tile, resume, samples, progress, cancel, preview, image,
+                depsgraph=None):
     from ..core.raycast import cast_rays
     from . import camera as hcam
     from . import outputs
 
-    params = hcam.camera_params(scene)
+    params = hcam.camera_params(scene, depsgraph=depsgraph)
     size = hcam.image_size(params)
     window = hcam.pixel_window(params, region)
     full_window = window
@@ -440,8 +455,8 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
     fingerprint = _digest("pixels", core_scene.poly_vertices, core_scene.poly_radiance,
                           core_scene.corner_radiance if core_scene.linear else 0, pts, normals)
     ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
-    ck = _compute(exported, pts, normals, None, checkpoint_path=ck_path, fingerprint=fingerprint, resume=resume,
-                  progress=progress, cancel=cancel, report=report)
+    ck = yield from _compute(exported, pts, normals, None, checkpoint_path=ck_path, fingerprint=fingerprint,
+                             resume=resume, progress=progress, cancel=cancel, report=report)
     h_hit, fsum_hit = ck.h, ck.fsum
     report.points = len(pts)
     report.max_form_factor_error = float(np.abs(fsum_hit - 1.0).max()) if len(pts) else 0.0
@@ -659,7 +674,7 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
     fingerprint = _digest("vertices", core_scene.poly_vertices, core_scene.poly_radiance,
                           core_scene.corner_radiance if core_scene.linear else 0, all_pts, all_nrm, all_lim)
     ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
-    ck = _compute(exported, all_pts, all_nrm, all_lim, checkpoint_path=ck_path, fingerprint=fingerprint,
+    ck = yield from _compute(exported, all_pts, all_nrm, all_lim, checkpoint_path=ck_path, fingerprint=fingerprint,
                   resume=resume, progress=progress, cancel=cancel, report=report)
     report.points = len(all_pts)
     report.max_form_factor_error = float(np.abs(ck.fsum - 1.0).max()) if len(all_pts) else 0.0
@@ -692,7 +707,21 @@ def _run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, e
 
 # ------------------------------------------------------------------------------------------- job
 @stops_on_first_sigint
-def run_local_pass(
+def run_local_pass(*args, **kwargs):
+    """Run the exact local pass to the end: :func:`local_pass_steps` (same arguments) drained.
+
+    Returns:
+        :class:`JobReport`.
+    """
+    steps = local_pass_steps(*args, **kwargs)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+
+
+def local_pass_steps(
     scene=None,
     *,
     output=None,
@@ -717,8 +746,13 @@ def run_local_pass(
     overwrite=False,
     objects=None,
     workers=None,
+    exported=None,
+    depsgraph=None,
 ):
-    """Run the exact local pass on ``scene`` (default: the context's scene).
+    """The exact local pass on ``scene`` (default: the context's scene) as a generator: it yields a
+    :class:`JobStep` after every chunk and returns the :class:`JobReport` (``StopIteration.value``).
+    :func:`run_local_pass` drains it; a modal operator advances it one timer tick at a time; closing
+    it (``.close()``) between steps stops the job before anything is written.
 
     Arguments left at ``None`` come from the scene's settings (``scene.hlp_settings`` when the
     extension is registered), else the defaults: ``mode="pixels"``, ``attribute="radiosity"``,
@@ -753,6 +787,10 @@ def run_local_pass(
         workers: worker processes (0: every core this process may use; 1: this process only; default
             the scene setting, else 0). Results are the same bits for any number. Workers run the
             bpy-free core in a real Python (see :mod:`hemisphere_local_pass.core.parallel`).
+        exported: an :class:`~.scene_export.ExportedScene` of this scene made with the same
+            attribute settings, to reuse (the render engine's bands); default: export the scene.
+        depsgraph: an evaluated depsgraph to read the objects and the camera from as it is (the
+            render engine's); default: the view layer's.
 
     Returns:
         :class:`JobReport`.
@@ -815,22 +853,23 @@ def run_local_pass(
     if mode == "pixels":
         from .camera import camera_params
 
-        camera_params(scene)  # no camera: fail before the (slow) export
+        camera_params(scene, depsgraph=depsgraph)  # no camera: fail before the (slow) export
 
     from .scene_export import export_scene
 
     progress = _Reporter(progress, status)
-    _stage(progress, "exporting the scene")
-    try:
-        exported = export_scene(scene, view_layer=view_layer, attribute=attribute, reflectivity_attribute=rho_attr,
-                                emission_attribute=emit_attr, missing=missing, double_sided=double_sided,
-                                status=progress.stage)
-    except BaseException:
-        _stage(progress, None)
-        raise
-    sc = exported.scene
-    _stage(progress, f"exported {len(exported.objects)} objects, {sc.n_input} polygons ({sc.n_polygons} convex) "
-                     f"in {time.perf_counter() - start:.1f} s")
+    if exported is None:
+        _stage(progress, "exporting the scene")
+        try:
+            exported = export_scene(scene, depsgraph=depsgraph, view_layer=view_layer, attribute=attribute,
+                                    reflectivity_attribute=rho_attr, emission_attribute=emit_attr, missing=missing,
+                                    double_sided=double_sided, status=progress.stage)
+        except BaseException:
+            _stage(progress, None)
+            raise
+        sc = exported.scene
+        _stage(progress, f"exported {len(exported.objects)} objects, {sc.n_input} polygons ({sc.n_polygons} "
+                         f"convex) in {time.perf_counter() - start:.1f} s")
     report = JobReport(mode=mode, black_occluders=list(exported.black_occluders),
                        dropped_polygons=exported.dropped_names(), objects=list(exported.objects), refused=refused)
     if workers == 0:
@@ -840,11 +879,12 @@ def run_local_pass(
     report.workers = workers  # at most; _compute uses one process for small jobs
     try:
         if mode == "pixels":
-            _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
-                        samples=samples, progress=progress, cancel=cancel, preview=preview, image=image)
+            yield from _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
+                        samples=samples, progress=progress, cancel=cancel, preview=preview, image=image,
+                        depsgraph=depsgraph)
         else:
             explicit = {n for n in (radiance_attribute, irradiance_attribute) if n}
-            _run_vertices(scene, view_layer, exported, report, attribute=attribute, rho_attr=rho_attr,
+            yield from _run_vertices(scene, view_layer, exported, report, attribute=attribute, rho_attr=rho_attr,
                           emit_attr=emit_attr,
                           radiance_attribute=(radiance_attribute or pick(None, "radiance_attribute", "")
                                               or "hlp_radiance"),

@@ -92,3 +92,19 @@ class HLP_OT_render_local_pass(bpy.types.Operator):
         summary = getattr(result, "summary", None)
         self.report({'INFO'}, summary() if callable(summary) else f"Local pass done in {seconds:.1f} s")
         return {'FINISHED'}
+
+    # the window's entry: timer-driven chunks, progress in the status bar, Esc (blender/modal.py)
+    def invoke(self, context, event):
+        from . import modal
+
+        return modal.start(self, context, job_arguments(context.scene, context.scene.hlp_settings))
+
+    def modal(self, context, event):
+        from . import modal
+
+        return modal.tick(self, context, event)
+
+    def cancel(self, context):
+        from . import modal
+
+        modal.cancel(self, context)

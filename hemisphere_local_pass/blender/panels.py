@@ -25,6 +25,10 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
     bl_label = "Hemisphere Local Pass"
     bl_options = {'DEFAULT_CLOSED'}
 
+    @classmethod
+    def poll(cls, context):  # with the engine active its own panels show the settings (engine.py)
+        return super().poll(context) and getattr(context, "engine", None) != "HEMISPHERE_LOCAL_PASS"
+
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
@@ -34,12 +38,12 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
 
         col = layout.column()
         col.prop(settings, "mode")
-        col.prop(settings, "attribute")
-        col.prop(settings, "missing_attribute")
-        col.prop(settings, "double_sided")
+        col.prop(settings, "attribute", text="Radiosity")  # short labels fit the default editor width
+        col.prop(settings, "missing_attribute", text="Missing")
+        col.prop(settings, "double_sided", text="Two-Sided")
 
         col = layout.column(heading="Receiver")
-        col.prop(settings, "reflectivity_attribute", text="Reflectivity")
+        col.prop(settings, "reflectivity_attribute", text="Albedo")
         col.prop(settings, "emission_attribute", text="Emission")
 
         if settings.mode == 'PIXELS':
@@ -54,3 +58,4 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
 
         layout.prop(settings, "workers")
         layout.operator(HLP_OT_render_local_pass.bl_idname, icon='RENDER_STILL')
+        layout.operator("hlp.bake_vertex_colours", icon='VPAINT_HLT')

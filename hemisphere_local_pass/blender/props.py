@@ -19,6 +19,14 @@ MISSING_ITEMS = (
 )
 
 
+def colour_attribute_names(self, context, edit_text=""):
+    """Search list of the radiosity field: the colour (and vector) attributes the scene's meshes have,
+    with the meshes that have them."""
+    from .attribute_search import colour_attributes
+
+    return colour_attributes(context.scene if context is not None else None, edit_text)
+
+
 class HLP_PG_settings(bpy.types.PropertyGroup):
     """Settings of the exact local pass for this scene"""
 
@@ -29,6 +37,7 @@ class HLP_PG_settings(bpy.types.PropertyGroup):
             "polygon, POINT or CORNER domain: linearly varying)"
         ),
         default="radiosity",
+        **({"search": colour_attribute_names} if bpy.app.version >= (3, 3, 0) else {}),
     )
     reflectivity_attribute: StringProperty(
         name="Reflectivity Attribute",

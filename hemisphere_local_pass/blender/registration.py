@@ -8,7 +8,7 @@ is harmless.
 
 import bpy
 
-from . import cli, operators, panels, props
+from . import cli, engine, inspector, modal, operators, panels, props
 
 __all__ = ["classes", "register", "unregister"]
 
@@ -17,6 +17,9 @@ classes = (
     operators.HLP_OT_render_local_pass,
     panels.HLP_PT_local_pass,
 )
+
+#: Modules with their own ``register()`` / ``unregister()`` (after ``classes``, undone before them).
+modules = (engine, modal, inspector)
 
 #: Handle returned by ``bpy.utils.register_cli_command`` (None when not registered / Blender < 4.2).
 _cli_handle = None
@@ -30,6 +33,8 @@ def register():
         if not cls.is_registered:
             bpy.utils.register_class(cls)
     bpy.types.Scene.hlp_settings = bpy.props.PointerProperty(type=props.HLP_PG_settings)
+    for module in modules:
+        module.register()
     if hasattr(bpy.utils, "register_cli_command") and _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command(cli.COMMAND, cli.handler)
 
@@ -39,6 +44,8 @@ def unregister():
     if _cli_handle is not None:
         bpy.utils.unregister_cli_command(_cli_handle)
         _cli_handle = None
+    for module in reversed(modules):
+        module.unregister()
     if hasattr(bpy.types.Scene, "hlp_settings"):
         del bpy.types.Scene.hlp_settings
     for cls in reversed(classes):

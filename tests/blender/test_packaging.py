@@ -212,7 +212,7 @@ def test_panel_draws(scene):
     layout = Layout()
     panel_cls.draw(types.SimpleNamespace(layout=layout), context)  # draw() only uses self.layout
     assert "attribute" in layout.props and "mode" in layout.props and "output_path" in layout.props
-    assert layout.operators == ["hlp.render_local_pass"]
+    assert layout.operators == ["hlp.render_local_pass", "hlp.bake_vertex_colours"]
 
 
 def test_import_does_not_import_bpy(tmp_path):

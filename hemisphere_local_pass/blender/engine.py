@@ -1,0 +1,352 @@
+"""The render engine "Hemisphere Local Pass": F12, *Render Animation* and ``blender -b file.blend -E
+HEMISPHERE_LOCAL_PASS -f 1`` render the exact local pass of the scene camera into the Render Result.
+
+The engine is one more entry point into :func:`.job.run_local_pass` (pixels mode, no files written,
+no image datablock: ``output=None, image=False``); Blender's own output settings then write the
+passes (PNG, multilayer EXR, ...) and the compositor can use them.
+
+Passes (``update_render_passes`` / ``register_pass``, as Cycles' ``engine.py``):
+
+=================== ======= ==========================================================================
+``Combined``        RGBA    outgoing radiance L = E + rho/pi H (eq. 5); alpha = coverage with a
+                            transparent film, else 1
+``Depth``           Z       view depth of the pixel centre's hit (Blender's Z pass)
+``Irradiance``      RGB     H (eq. 3), W m^-2
+``Form Factor Sum`` X       sum of the visible form factors (1 inside a closed scene)
+``Error Estimate``  X       error bound of the adaptive (tolerance) job; 0 where computed exactly
+``Exact Samples``   X       fraction of the pixel's samples computed exactly (1 for the exact job)
+``IndexOB``         X       ``Object.pass_index`` of the hit object (Blender's Object Index pass)
+=================== ======= ==========================================================================
+
+The window is cut into row bands (``BAND_PIXELS`` pixels each), rendered top to bottom: each band is
+one ``run_local_pass(region=band)`` on one export of the render depsgraph, written with
+``begin_result``/``end_result`` so it appears in the Image Editor while the rest renders.
+``test_break()`` is the job's ``cancel`` callback (checked by the core every few hundred points):
+Esc stops within a fraction of a second and keeps the finished bands.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import bpy
+import numpy as np
+
+__all__ = ["ENGINE_ID", "PASSES", "HLP_PT_engine_bake", "HLP_PT_engine_settings", "HLP_RenderEngine", "band_windows",
+           "pass_arrays"]
+
+ENGINE_ID = "HEMISPHERE_LOCAL_PASS"
+
+#: (name, channel ids, type) of every pass besides Combined, in the order of ``update_render_passes``.
+PASSES = (
+    ("Depth", "Z", 'VALUE'),
+    ("Irradiance", "RGB", 'COLOR'),
+    ("Form Factor Sum", "X", 'VALUE'),
+    ("Error Estimate", "X", 'VALUE'),
+    ("Exact Samples", "X", 'VALUE'),
+    ("IndexOB", "X", 'VALUE'),
+)
+
+#: Pixels per band (a band is whole rows): small enough that partial results come every second or so.
+BAND_PIXELS = 4096
+
+#: The running / last render, for scripts and tests: ``done``, ``total`` points, ``cancelled``,
+#: ``seconds``, ``bands`` finished of ``n_bands``, ``cancelled_at`` (``time.perf_counter()`` when
+#: test_break() stopped it) (updated as the render goes).
+status: dict = {}
+
+#: Keys of the job's layers (``JobReport.result``) that fill Error Estimate / Exact Samples once the
+#: adaptive job provides them; absent keys mean an exact job (error 0, every sample exact).
+_ERROR_KEYS = ("error_estimate", "error")
+_EXACT_KEYS = ("exact_samples", "exact")
+
+
+def band_windows(window, band_pixels: int | None = None) -> list:
+    """Row bands ``(x0, y0, x1, y1)`` of ``window`` from the top row down, each about
+    ``band_pixels`` (default ``BAND_PIXELS``) pixels (at least one row), covering the window exactly once."""
+    if band_pixels is None:
+        band_pixels = BAND_PIXELS  # read at call time: scripts and tests may change it
+    x0, y0, x1, y1 = window
+    rows = max(1, band_pixels // max(1, x1 - x0))
+    bands = []
+    top = y1
+    while top > y0:
+        bottom = max(y0, top - rows)
+        bands.append((x0, bottom, x1, top))
+        top = bottom
+    return bands
+
+
+def _layer(layers, keys, shape, default):
+    for key in keys:
+        if key in layers:
+            return np.asarray(layers[key], dtype=np.float64).reshape(shape)
+    return np.full(shape, default, dtype=np.float64)
+
+
+def pass_arrays(layers: dict, pass_index, film_transparent: bool) -> dict:
+    """The job's image layers of one band (:mod:`.outputs`; ``(h, w, ...)``, row 0 at the bottom)
+    -> ``{pass name: (h * w, channels) float32}`` in the order of the render result's rects.
+
+    ``pass_index``: (n_objects,) ``Object.pass_index`` of the job's objects (IndexOB)."""
+    rad = np.asarray(layers["radiance"], dtype=np.float64)
+    h, w = rad.shape[:2]
+    n = h * w
+    alpha = np.asarray(layers["alpha"], dtype=np.float64).reshape(n, 1)
+    combined = np.concatenate([rad.reshape(n, 3), alpha if film_transparent else np.ones((n, 1))], axis=1)
+    obj = np.asarray(layers["object_index"]).reshape(n).astype(np.int64)
+    pass_index = np.asarray(pass_index, dtype=np.float64)
+    index_ob = np.where(obj >= 0, pass_index[np.maximum(obj, 0)] if len(pass_index) else 0.0, 0.0)
+    covered = alpha[:, 0] > 0
+    out = {
+        "Combined": combined,
+        "Depth": np.asarray(layers["depth"]).reshape(n, 1),
+        "Irradiance": np.asarray(layers["irradiance"]).reshape(n, 3),
+        "Form Factor Sum": np.asarray(layers["form_factor_sum"]).reshape(n, 1),
+        "Error Estimate": _layer(layers, _ERROR_KEYS, (n, 1), 0.0),
+        "Exact Samples": np.where(covered[:, None], _layer(layers, _EXACT_KEYS, (n, 1), 1.0), 0.0),
+        "IndexOB": index_ob.reshape(n, 1),
+    }
+    return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in out.items()}
+
+
+def _image_window(scene, result_size, depsgraph=None):
+    """The render result's pixels ``(x0, y0, x1, y1)`` in image coordinates: the render border's
+    rectangle (``camera.pixel_window``), sized as Blender made the result (``result_size``)."""
+    from . import camera as hcam
+
+    x0, y0, _x1, _y1 = hcam.pixel_window(hcam.camera_params(scene, depsgraph=depsgraph))
+    return x0, y0, x0 + int(result_size[0]), y0 + int(result_size[1])
+
+
+class _Stats:
+    """update_stats / update_progress: "12,288 / 65,536 points, 3,100 points/s, ETA 17 s"."""
+
+    def __init__(self, engine, total):
+        self.engine = engine
+        self.total = max(int(total), 1)
+        self.base = 0
+        self.start = time.perf_counter()
+        self.last = 0.0
+
+    def band(self, size):
+        base = self.base
+
+        def progress(done, total):
+            self.show(base + int(size * done / max(total, 1)))
+
+        return progress
+
+    def finish_band(self, size):
+        self.base += size
+        self.show(self.base, force=True)
+
+    def show(self, done, force=False):
+        now = time.perf_counter()
+        if not force and now - self.last < 0.25:
+            return
+        self.last = now
+        status.update(done=int(done), total=self.total)
+        elapsed = now - self.start
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = (self.total - done) / rate if rate > 0 else math.nan
+        eta_s = f"{eta:,.0f} s" if math.isfinite(eta) else "?"
+        self.engine.update_stats("Hemisphere Local Pass",
+                                 f"{done:,} / {self.total:,} points, {rate:,.0f} points/s, ETA {eta_s}")
+        self.engine.update_progress(min(1.0, done / self.total))
+
+
+class HLP_RenderEngine(bpy.types.RenderEngine):
+    """Exact local pass of two-pass global illumination from the scene's radiosity attribute"""
+
+    bl_idname = ENGINE_ID
+    bl_label = "Hemisphere Local Pass"
+    bl_use_preview = False
+    bl_use_postprocess = True
+    bl_use_eevee_viewport = True  # Material Preview / Rendered viewport shading through EEVEE
+
+    def _fail(self, message):
+        """Bad input: the render stops with the message (Image Editor header, stdout in ``-b``)."""
+        if hasattr(self, "error_set"):
+            self.error_set(message)
+        self.report({'ERROR'}, message)
+
+    def update_render_passes(self, scene=None, renderlayer=None):
+        self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
+        for name, chans, kind in PASSES:
+            self.register_pass(scene, renderlayer, name, len(chans), chans, kind)
+
+    def render(self, depsgraph):
+        from ..core import Cancelled
+        from .job import run_local_pass
+        from .scene_export import export_scene
+
+        scene = depsgraph.scene
+        view_layer = depsgraph.view_layer
+        settings = getattr(scene, "hlp_settings", None)
+        kwargs = {}
+        if settings is not None:
+            kwargs = {"attribute": settings.attribute, "reflectivity_attribute": settings.reflectivity_attribute,
+                      "emission_attribute": settings.emission_attribute,
+                      "missing": settings.missing_attribute.lower(), "double_sided": settings.double_sided}
+        k = int(settings.samples) if settings is not None else 1
+        # the result is the border's size when a render border is set (resolution_x/y: the whole image)
+        result = self.begin_result(0, 0, int(self.resolution_x), int(self.resolution_y), layer=view_layer.name)
+        try:
+            size = (int(result.resolution_x), int(result.resolution_y))
+            window = _image_window(scene, size, depsgraph)
+            self.update_stats("Hemisphere Local Pass", "Exporting the scene")
+            exported = export_scene(scene, depsgraph=depsgraph, view_layer=view_layer, **kwargs)
+        except ValueError as ex:
+            self.end_result(result)
+            self._fail(str(ex))
+            return
+        n = size[0] * size[1]
+        rects = {"Combined": np.zeros((n, 4), np.float32)}
+        rects.update({name: np.zeros((n, len(chans)), np.float32) for name, chans, _kind in PASSES})
+        layer = result.layers[0]
+        targets = {name: layer.passes.get(name) for name in rects}  # None: not a pass of this result
+        bands = band_windows(window)
+        stats = _Stats(self, n * k * k)
+        transparent = bool(scene.render.film_transparent)
+        points = 0
+        worst = 0.0
+        start = time.perf_counter()
+        status.clear()
+        status.update(done=0, total=n * k * k, cancelled=False, bands=0, n_bands=len(bands), seconds=0.0)
+        try:
+            for band in bands:
+                if self.test_break():
+                    status.update(cancelled=True, cancelled_at=time.perf_counter())
+                    break
+                size_b = (band[2] - band[0]) * (band[3] - band[1]) * k * k
+                try:
+                    report = run_local_pass(scene, mode="pixels", region=band, output=None, image=False,
+                                            preview=False, samples=k, exported=exported, depsgraph=depsgraph,
+                                            view_layer=view_layer, progress=stats.band(size_b),
+                                            cancel=self.test_break, **kwargs)
+                except Cancelled:  # Esc: keep the finished bands
+                    status.update(cancelled=True, cancelled_at=time.perf_counter())
+                    break
+                except ValueError as ex:
+                    self._fail(str(ex))
+                    break
+                points += report.points
+                worst = max(worst, report.max_form_factor_error)
+                arrays = pass_arrays(report.result, exported.object_pass_index, transparent)
+                rows = np.arange(band[1], band[3]) - window[1]
+                cols = np.arange(band[0], band[2]) - window[0]
+                flat = (rows[:, None] * size[0] + cols[None, :]).reshape(-1)  # result rect rows, bottom first
+                for name, values in arrays.items():
+                    rects[name][flat] = values
+                    if targets.get(name) is not None:
+                        targets[name].rect = rects[name]
+                self.update_result(result)  # the finished band appears in the Image Editor
+                stats.finish_band(size_b)
+                status["bands"] += 1
+        finally:
+            self.end_result(result)
+            status["seconds"] = time.perf_counter() - start
+        seconds = time.perf_counter() - start
+        self.update_stats("Hemisphere Local Pass",
+                          f"{points:,} points in {seconds:.1f} s, max |sum F - 1| = {worst:.2e}")
+
+
+class HLP_EngineButtonsPanel:
+    """Render-context panels of this engine (as ``RenderButtonsPanel`` + ``COMPAT_ENGINES``)."""
+
+    bl_space_type = 'PROPERTIES'
+    bl_region_type = 'WINDOW'
+    bl_context = "render"
+    COMPAT_ENGINES = {ENGINE_ID}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES and hasattr(context.scene, "hlp_settings")
+
+
+#: Settings that other parts of the extension add to ``HLP_PG_settings`` (drawn when present).
+_OPTIONAL = (("tolerance", "Tolerance"), ("workers", "Workers"))
+
+
+class HLP_PT_engine_settings(HLP_EngineButtonsPanel, bpy.types.Panel):
+    """Radiosity input and sampling of the exact local pass"""
+
+    bl_label = "Local Pass"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.hlp_settings
+        col = layout.column()
+        col.prop(settings, "attribute", text="Radiosity")
+        col.prop(settings, "missing_attribute", text="Missing")
+        col.prop(settings, "double_sided", text="Two-Sided")
+        col = layout.column(heading="Receiver")  # short labels: they fit the default editor width
+        col.prop(settings, "reflectivity_attribute", text="Albedo")
+        col.prop(settings, "emission_attribute", text="Emission")
+        col = layout.column()
+        col.prop(settings, "samples", text="Samples")
+        for prop, label in _OPTIONAL:
+            if hasattr(settings, prop):
+                col.prop(settings, prop, text=label)
+
+
+class HLP_PT_engine_bake(HLP_EngineButtonsPanel, bpy.types.Panel):
+    """Bake the local pass into vertex colours, or render it to the Local Pass image without F12"""
+
+    bl_label = "Bake"
+    bl_options = {'DEFAULT_CLOSED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.operator("hlp.bake_vertex_colours", icon='VPAINT_HLT')
+        layout.prop(context.scene.hlp_settings, "output_path")
+        layout.operator("hlp.render_local_pass", text="Render to Image", icon='RENDER_STILL')
+
+
+def draw_render_context(self, context):
+    """One line under Properties > Render > Render Engine with any engine: the local pass's buttons,
+    found without scrolling (the full panel is at the end of the tab)."""
+    if context.engine == ENGINE_ID or not hasattr(context.scene, "hlp_settings"):
+        return
+    split = self.layout.split(factor=0.6, align=True)
+    split.operator("hlp.render_local_pass", text="Local Pass", icon='RENDER_STILL')
+    split.operator("hlp.bake_vertex_colours", text="Bake", icon='VPAINT_HLT')
+
+
+classes = (HLP_RenderEngine, HLP_PT_engine_settings, HLP_PT_engine_bake)
+
+
+def compatible_panels():
+    """Blender's own render panels that list their engines (``COMPAT_ENGINES``) and apply here."""
+    names = ("RENDER_PT_color_management", "RENDER_PT_color_management_curves",
+             "RENDER_PT_color_management_display_settings")
+    return [getattr(bpy.types, n) for n in names if hasattr(bpy.types, n)]
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    for panel in compatible_panels():
+        engines = getattr(panel, "COMPAT_ENGINES", None)
+        if isinstance(engines, set):
+            engines.add(ENGINE_ID)
+    if hasattr(bpy.types, "RENDER_PT_context"):
+        bpy.types.RENDER_PT_context.append(draw_render_context)
+
+
+def unregister():
+    if hasattr(bpy.types, "RENDER_PT_context"):
+        bpy.types.RENDER_PT_context.remove(draw_render_context)
+    for panel in compatible_panels():
+        engines = getattr(panel, "COMPAT_ENGINES", None)
+        if isinstance(engines, set):
+            engines.discard(ENGINE_ID)
+    for cls in reversed(classes):
+        if getattr(cls, "is_registered", True):
+            bpy.utils.unregister_class(cls)

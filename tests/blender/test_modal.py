@@ -1,0 +1,110 @@
+"""The modal machinery (blender/modal.py) in the bpy module: a job advanced chunk by chunk gives the
+same result as run_local_pass; closing it between chunks leaves the scene unchanged; the operators
+run synchronously in background mode; the radiosity field's search lists the scene's colour
+attributes. (Timers, Esc and the status bar need a window: tests/blender_exe/test_ui.py.)"""
+
+import importlib
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+@pytest.fixture
+def hlp(extension, scene):
+    base = extension.__name__
+    return {name: importlib.import_module(f"{base}.blender.{name}")
+            for name in ("modal", "job", "operators", "attribute_search")}
+
+
+def build_box(resolution=8):
+    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box", os.path.join(ROOT, "sample_scenes",
+                                                                                        "cornell_box.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.build(2, resolution=resolution, reset=False)
+    return bpy.context.scene
+
+
+def mesh_state(scene):
+    """Everything a bake could change: attribute names and the mesh's vertex coordinates."""
+    state = {}
+    for ob in scene.objects:
+        if ob.type == "MESH":
+            co = np.empty(len(ob.data.vertices) * 3)
+            ob.data.vertices.foreach_get("co", co)
+            state[ob.name] = (sorted(a.name for a in ob.data.attributes), co.tobytes())
+    return state
+
+
+def select_meshes(scene, names):
+    for ob in scene.objects:
+        ob.select_set(ob.name in names)
+    bpy.context.view_layer.objects.active = bpy.data.objects[names[0]]
+
+
+def test_steps_equal_run_local_pass_and_close_changes_nothing(hlp):
+    scene = build_box(16)
+    modal = hlp["modal"]
+    kwargs = hlp["operators"].job_arguments(scene, scene.hlp_settings)
+    kwargs.update(mode="pixels", output=None, image=False)
+    run = modal.LocalPassRun(kwargs)
+    ticks = 0
+    while not run.advance(budget=0.0):  # one chunk per tick
+        ticks += 1
+        assert 0 < run.done <= run.total
+        assert "points/s" in run.text() and "ETA" in run.text()
+    assert ticks >= 2, "the job must come in several chunks"
+    direct = hlp["job"].run_local_pass(**kwargs)
+    assert np.array_equal(run.report.result["radiance"], direct.result["radiance"])  # bitwise
+
+    names = [ob.name for ob in scene.objects if ob.type == "MESH"][:2]
+    select_meshes(scene, names)
+    before = mesh_state(scene)
+    kwargs.update(mode="vertices")
+    run = modal.LocalPassRun(kwargs)
+    assert not run.advance(budget=0.0)
+    run.close()  # Esc between two chunks
+    assert mesh_state(scene) == before
+
+
+def test_bake_operator_background_is_synchronous(hlp):
+    scene = build_box(4)
+    names = [ob.name for ob in scene.objects if ob.type == "MESH"][:1]
+    select_meshes(scene, names)
+    assert bpy.ops.hlp.bake_vertex_colours('INVOKE_DEFAULT') == {'FINISHED'}
+    mesh = bpy.data.objects[names[0]].data
+    assert "hlp_radiance" in mesh.attributes and "hlp_irradiance" in mesh.attributes
+    for ob in scene.objects:
+        ob.select_set(False)
+    assert not bpy.ops.hlp.bake_vertex_colours.poll()
+
+
+def test_show_vertex_colours_makes_the_attribute_active(hlp):
+    scene = build_box(4)
+    names = [ob.name for ob in scene.objects if ob.type == "MESH"][:1]
+    select_meshes(scene, names)
+    assert bpy.ops.hlp.bake_vertex_colours() == {'FINISHED'}
+    ob = bpy.data.objects[names[0]]
+    hlp["modal"].show_vertex_colours(bpy.context, [ob], "hlp_radiance")
+    assert ob.data.color_attributes.active_color.name == "hlp_radiance"
+
+
+def test_attribute_search_lists_colour_attributes(hlp):
+    scene = build_box(4)
+    ob = next(o for o in scene.objects if o.type == "MESH")
+    ob.data.attributes.new("my_radiance", "FLOAT_COLOR", "POINT")
+    ob.data.attributes.new("weight", "FLOAT", "POINT")  # not a colour: not listed
+    items = hlp["attribute_search"].colour_attributes(scene)
+    names = [name for name, _desc in items]
+    assert "radiosity" in names and "my_radiance" in names and "weight" not in names
+    assert names == sorted(names)
+    assert [n for n, _ in hlp["attribute_search"].colour_attributes(scene, "MY_")] == ["my_radiance"]
+    assert ob.name in dict(items)["my_radiance"]
+    props = importlib.import_module(hlp["modal"].__name__.rsplit(".", 1)[0] + ".props")
+    assert props.colour_attribute_names(scene.hlp_settings, bpy.context, "") == items  # the field's search
