@@ -90,8 +90,9 @@ def test_cancel_and_ctrl_c_with_workers_stop_every_process(mods, tmp_path, monke
     def interrupt(done, total):
         raise KeyboardInterrupt
 
-    with pytest.raises(KeyboardInterrupt):
-        job.run_local_pass(output=str(tmp_path / "c.exr"), preview=False, workers=2, progress=interrupt)
+    with pytest.raises(KeyboardInterrupt):  # the cancelled run's checkpoint is ours to replace
+        job.run_local_pass(output=str(tmp_path / "c.exr"), preview=False, workers=2, progress=interrupt,
+                           overwrite=True)
     assert _children() == before
     # the finished chunks are in the checkpoint; resuming on one process gives the same file as a clean run
     rep = job.run_local_pass(output=str(tmp_path / "c.exr"), preview=False, workers=1, resume=True)
