@@ -3,10 +3,13 @@
 Pure numpy: importing this package needs nothing but numpy (no bpy, no mathutils).
 
     from hemisphere_local_pass.core import Scene, form_factors, irradiance, radiance, project_point
+    from hemisphere_local_pass.core import adaptive_irradiance  # images: exact only where needed
 """
 
+from .adaptive import AdaptiveStats, adaptive_irradiance
 from .local_pass import Cancelled, form_factors, irradiance, radiance
 from .projection import Projection, project_point
 from .scene import Scene
 
-__all__ = ["Cancelled", "Projection", "Scene", "form_factors", "irradiance", "project_point", "radiance"]
+__all__ = ["AdaptiveStats", "Cancelled", "Projection", "Scene", "adaptive_irradiance", "form_factors", "irradiance",
+           "project_point", "radiance"]
