@@ -22,6 +22,7 @@ def job_arguments(scene, settings: HLP_PG_settings) -> dict:
         "samples": settings.samples,
         "output": output if settings.mode == 'PIXELS' else None,
         "double_sided": settings.double_sided,
+        "tolerance": getattr(settings, "tolerance", 0.0),
     }
 
 

@@ -45,6 +45,7 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
         if settings.mode == 'PIXELS':
             col = layout.column()
             col.prop(settings, "samples")
+            col.prop(settings, "tolerance")
             col.prop(settings, "output_path")
 
         layout.operator(HLP_OT_render_local_pass.bl_idname, icon='RENDER_STILL')
