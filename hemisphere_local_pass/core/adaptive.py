@@ -29,19 +29,23 @@ on a quadtree of image cells:
      down to single pixels, i.e. evaluated exactly.
 3. Otherwise the cell's four edge midpoints and its centre are evaluated exactly (the a-posteriori spot
    check): ``d`` = the largest difference, over those five samples and the three channels, between the
-   exact value and the bilinear interpolation of the four corners. If ``d <= tolerance`` the cell is
-   accepted and its pixels are interpolated bilinearly from its nine exact samples (over its four
-   sub-cells); else it is split and its children go through 2–3 again. Cells of at most 2 × 2 pixels
-   have exact samples at every pixel.
+   exact value and the bilinear interpolation of the four corners. The cell's error estimate is
+   ``INNER_FACTOR * d`` (``EDGE_FACTOR * d`` for a cell next to a surface break or the image border,
+   where H is not smooth: at a concave junction it goes like x log x); if it is at most ``tolerance``
+   the cell is accepted and its pixels are interpolated bilinearly from its nine exact samples (over
+   its four sub-cells); else it is split and its children go through 2–3 again. Cells of at most
+   2 × 2 pixels have exact samples at every pixel.
 
-Error estimate: for smooth H the bilinear interpolant's error falls with the square of the spacing, so
-the accepted interpolant (spacing halved) errs by about ``d / 4``; the returned per-pixel estimate is
-``d / 2`` (a factor-2 margin), 0 at exact samples. What is *not* guaranteed: the shadows of emitters
-dimmer than the lights (walls of a radiosity solution) are left to the spot check — a feature of such
-an emitter narrower than half a cell can slip between the nine samples; its size is bounded by the
-emitter's radiance times the occluder's form factor, and the tests measure how often and how large
-(tests/core/test_adaptive.py). Forcing the shadow test for every emitter would force exactness nearly
-everywhere in a subdivided radiosity scene (every wall cell is occluded by something somewhere).
+Why those factors: for smooth H the bilinear interpolant's error falls with the square of the spacing,
+so the accepted interpolant (spacing halved) errs by about ``d / 4``; measured on the 256² Cornell box
+the ratio of the true largest error in a cell to ``d`` reached 0.9 inside surfaces and 1.8 next to
+junctions, hence the factors 2 and 4 (a margin of about 2). The estimate is a-posteriori, not a bound.
+What is *not* guaranteed: the shadows of emitters dimmer than the lights (walls of a radiosity
+solution) are left to the spot check — a feature of such an emitter narrower than half a cell can slip
+between the nine samples; its size is bounded by the emitter's radiance times the occluder's form
+factor, and the tests measure it (tests/core/test_adaptive.py). Forcing the shadow test for every
+emitter would force exactness nearly everywhere in a subdivided radiosity scene (every wall cell is
+occluded by something somewhere).
 
 ``tolerance = 0`` evaluates every hit pixel exactly in one :func:`irradiance` call and so reproduces
 the all-exact image bit for bit.
@@ -70,11 +74,10 @@ NORMAL_JUMP = 1e-3
 #: radiance of all emitters is a *light*: its shadows are found geometrically, not by spot checks.
 LIGHT_RATIO = 4.0
 #: Error estimate of an accepted cell, per unit of its spot check's discrepancy ``d``: inside a surface
-#: (H smooth: the interpolant at half the spacing errs by ~d/4, measured up to 0.68 d on the Cornell box)
-#: and next to a surface break or the image border (H ~ x log x at a junction; measured up to 1.8 d).
-#: A cell is accepted when its estimate is at most the tolerance.
-INNER_FACTOR = 1.0
-EDGE_FACTOR = 2.5
+#: and next to a surface break or the image border (module docstring). A cell is accepted when its
+#: estimate is at most the tolerance.
+INNER_FACTOR = 2.0
+EDGE_FACTOR = 4.0
 #: Candidate (cell, light, polygon) triples tested at once by the shadow test (memory bound).
 _PAIR_BATCH = 1 << 18
 
@@ -275,6 +278,10 @@ def _shadow_cells(scene, bvh, lights, quads, normals, eps):
             # the polygon's plane with the whole hull on one side
             side = np.einsum("pic,pc->pi", hull[qs], scene.poly_normals[ps]) - scene.poly_offsets[ps][:, None]
             sep |= (side.max(axis=1) <= eps) | (side.min(axis=1) >= -eps)
+            # a polygon on or below the cell's plane hides nothing above the cell's horizon (the light may
+            # straddle that plane, so the plane need not bound the hull)
+            below = np.einsum("pkc,pc->pk", pv - quads[cand[qs], :1], normals[cand[qs]])
+            sep |= below.max(axis=1) <= eps
             # an occluder whose shadow is wider than the cell cannot hide a feature between the cell's
             # samples: its shadow's edges cross the cell as ramps or steps, which the spot check sees
             sep |= g["width"][ps] >= diam[qs]
