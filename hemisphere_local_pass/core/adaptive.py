@@ -270,21 +270,25 @@ def _shadow_cells(scene, bvh, lights, quads, normals, eps):
             qs, ps = qs[keep], ps[keep]
             if not len(qs):
                 continue
+            # cheapest tests first, each on the pairs still unseparated.
+            # An occluder whose shadow is wider than the cell cannot hide a feature between the cell's
+            # samples: its shadow's edges cross the cell as ramps or steps, which the spot check sees
+            keep = g["width"][ps] < diam[qs]
+            qs, ps = qs[keep], ps[keep]
             pv = scene.poly_vertices[ps]                                   # (p, K, 3), padding repeats
+            # a polygon on or below the cell's plane hides nothing above the cell's horizon (the light may
+            # straddle that plane, so the plane need not bound the hull)
+            below = np.einsum("pkc,pc->pk", pv - quads[cand[qs], :1], normals[cand[qs]])
+            keep = below.max(axis=1) > eps
+            # the polygon's plane with the whole hull on one side
+            qs, ps, pv = qs[keep], ps[keep], pv[keep]
+            side = np.einsum("pic,pc->pi", hull[qs], scene.poly_normals[ps]) - scene.poly_offsets[ps][:, None]
+            keep = (side.max(axis=1) > eps) & (side.min(axis=1) < -eps)
+            qs, ps, pv = qs[keep], ps[keep], pv[keep]
             # a hull face with the whole polygon outside it
             dist = np.einsum("pkc,pfc->pfk", pv, hn[qs]) - ho[qs][..., None]   # (p, 34, K)
             valid_face = np.abs(hn[qs]).sum(axis=2) > 0
             sep = (valid_face & (dist.min(axis=2) >= -eps)).any(axis=1)
-            # the polygon's plane with the whole hull on one side
-            side = np.einsum("pic,pc->pi", hull[qs], scene.poly_normals[ps]) - scene.poly_offsets[ps][:, None]
-            sep |= (side.max(axis=1) <= eps) | (side.min(axis=1) >= -eps)
-            # a polygon on or below the cell's plane hides nothing above the cell's horizon (the light may
-            # straddle that plane, so the plane need not bound the hull)
-            below = np.einsum("pkc,pc->pk", pv - quads[cand[qs], :1], normals[cand[qs]])
-            sep |= below.max(axis=1) <= eps
-            # an occluder whose shadow is wider than the cell cannot hide a feature between the cell's
-            # samples: its shadow's edges cross the cell as ramps or steps, which the spot check sees
-            sep |= g["width"][ps] >= diam[qs]
             np.logical_or.at(hit, qs[~sep], True)
         out[cand[hit]] = True
     return out
