@@ -140,7 +140,7 @@ def main(argv=None):
     command = ("OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_time_vs_error.py "
                f"--scenes {args.scenes} --size {args.size} --rel {args.rel} --spp {args.spp}")
     rels = [float(r) for r in args.rel.split(",")]
-    report = {"machine": machine(), "command": command, "scenes": []}
+    report = {"machine": machine(), "command": command, "size": args.size, "scenes": []}
     for key in args.scenes.split(","):
         box, lum, scene, inputs, rho, emit, t_prep = prepare(key, args.size)
         log(f"[{key}] {box.n_polygons} polygons: preparation {t_prep:.1f} s")
@@ -257,7 +257,7 @@ def plot(report, path):
             if r["method"].startswith("exact"):
                 ax.axvline(r["seconds"], color="k", ls="--", label=f"exact ({r['seconds']:.0f} s)")
         ax.axhline(0.01, color="grey", lw=0.5)
-        ax.set_title(f"{e['polygons']} polygons, 256²")
+        ax.set_title(f"{e['polygons']} polygons, {report.get('size', 256)}²")
         ax.set_xlabel("seconds (wall, preparation apart)")
         ax.set_ylabel("error / mean (luminance)")
         ax.legend(fontsize=7)
