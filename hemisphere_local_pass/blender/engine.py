@@ -59,7 +59,7 @@ status: dict = {}
 #: Keys of the job's layers (``JobReport.result``) that fill Error Estimate / Exact Samples once the
 #: adaptive job provides them; absent keys mean an exact job (error 0, every sample exact).
 _ERROR_KEYS = ("error_estimate", "error")
-_EXACT_KEYS = ("exact_samples", "exact")
+_EXACT_KEYS = ("exact_sample", "exact_samples", "exact")
 
 
 def band_windows(window, band_pixels: int | None = None) -> list:

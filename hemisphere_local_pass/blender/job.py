@@ -92,6 +92,9 @@ class JobReport:
     workers: int = 1
     objects: list = field(default_factory=list, repr=False)
     result: dict = field(default_factory=dict, repr=False)
+    exact_points: int | None = None       # adaptive pass: exact evaluations (None: every point exact)
+    tolerance: float | None = None        # adaptive pass: the absolute tolerance on H used
+    error_estimate: float | None = None   # adaptive pass: largest per-pixel error estimate of H
 
     @property
     def points_per_second(self) -> float:
@@ -100,8 +103,12 @@ class JobReport:
 
     def summary(self) -> str:
         """One line for the UI and the command line."""
-        parts = [f"{self.points} points in {self.seconds:.1f} s ({self.points_per_second:.0f} points/s)",
-                 f"max |sum F - 1| = {self.max_form_factor_error:.2e}"]
+        parts = [f"{self.points} points in {self.seconds:.1f} s ({self.points_per_second:.0f} points/s)"]
+        if self.exact_points is None:
+            parts.append(f"max |sum F - 1| = {self.max_form_factor_error:.2e}")
+        else:
+            parts.append(f"adaptive: {self.exact_points} exact, estimated error <= {self.error_estimate:.2e} "
+                         f"(tolerance {self.tolerance:.2e} W/m2)")
         if self.black_occluders:
             parts.append(f"{len(self.black_occluders)} black occluder(s)")
         if self.dropped_polygons:
@@ -424,7 +431,7 @@ def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, pro
 
 # ---------------------------------------------------------------------------------------- pixels
 def _run_pixels(scene, exported, report, *, output, region, tile, resume, samples, progress, cancel, preview, image,
-                depsgraph=None):
+                depsgraph=None, tolerance=0.0):
     from ..core.raycast import cast_rays
     from . import camera as hcam
     from . import outputs
@@ -452,14 +459,24 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
     pts = hits.point[hit]
     pts = pts - (np.einsum("ij,ij->i", nrm, pts) - core_scene.poly_offsets[poly])[:, None] * nrm
 
-    fingerprint = _digest("pixels", core_scene.poly_vertices, core_scene.poly_radiance,
-                          core_scene.corner_radiance if core_scene.linear else 0, pts, normals)
-    ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
-    ck = yield from _compute(exported, pts, normals, None, checkpoint_path=ck_path, fingerprint=fingerprint,
-                             resume=resume, progress=progress, cancel=cancel, report=report)
-    h_hit, fsum_hit = ck.h, ck.fsum
+    npix = len(px)
+    shape = (window[3] - window[1], window[2] - window[0])
+    ck = None
+    if tolerance > 0:
+        h_hit, exact_hit, err_hit = _adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance,
+                                                     progress, cancel, report)
+        fsum_hit = np.full(len(pts), np.nan)  # not computed: the adaptive pass evaluates H only
+        report.max_form_factor_error = float("nan")
+    else:
+        fingerprint = _digest("pixels", core_scene.poly_vertices, core_scene.poly_radiance,
+                              core_scene.corner_radiance if core_scene.linear else 0, pts, normals)
+        ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
+        ck = yield from _compute(exported, pts, normals, None, checkpoint_path=ck_path, fingerprint=fingerprint,
+                                 resume=resume, progress=progress, cancel=cancel, report=report)
+        h_hit, fsum_hit = ck.h, ck.fsum
+        exact_hit, err_hit = np.ones(len(pts)), np.zeros(len(pts))
+        report.max_form_factor_error = float(np.abs(fsum_hit - 1.0).max()) if len(pts) else 0.0
     report.points = len(pts)
-    report.max_form_factor_error = float(np.abs(fsum_hit - 1.0).max()) if len(pts) else 0.0
 
     emits = exported.emission[src] * (front | core_scene.double_sided)[:, None]
     l_hit = emits + exported.reflectivity[src] / np.pi * h_hit  # eq. 5
@@ -469,7 +486,8 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
     irr = np.zeros((n_samples, 3))
     fsum = np.zeros(n_samples)
     radiance[hit], irr[hit], fsum[hit] = l_hit, h_hit, fsum_hit
-    npix = len(px)
+    exact_s, err_s = np.zeros(n_samples), np.zeros(n_samples)
+    exact_s[hit], err_s[hit] = exact_hit, err_hit
     hit2 = hit.reshape(npix, k2)
     cover = hit2.mean(axis=1)
     lay_rad = radiance.reshape(npix, k2, 3).mean(axis=1)
@@ -485,8 +503,11 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
     pol_idx = np.where(chit, exported.polygon_index[np.maximum(src_all, 0)], -1)
 
     x0, y0, x1, y1 = window
-    shape = (y1 - y0, x1 - x0)
     layers = {
+        # the adaptive pass (tolerance > 0): error estimate of H (mean over the pixel's samples; 0 where
+        # exact) and the fraction of the pixel's samples evaluated exactly (1 everywhere at tolerance 0)
+        "error_estimate": err_s.reshape(npix, k2).mean(axis=1).reshape(shape),
+        "exact_sample": exact_s.reshape(npix, k2).mean(axis=1).reshape(shape),
         "radiance": lay_rad.reshape(shape + (3,)), "irradiance": lay_irr.reshape(shape + (3,)),
         "alpha": cover.reshape(shape), "form_factor_sum": lay_f.reshape(shape), "depth": depth.reshape(shape),
         "object_index": obj_idx.reshape(shape).astype(np.float64),
@@ -505,13 +526,59 @@ def _run_pixels(scene, exported, report, *, output, region, tile, resume, sample
             full = np.zeros((size[1], size[0], 3))
             full[y0:y1, x0:x1] = layers["radiance"]
             report.outputs.append(outputs.write_png(png, full))
-        ck.remove()
+        if ck is not None:
+            ck.remove()
     if image:
         rgba = np.zeros((size[1], size[0], 4))
         rgba[y0:y1, x0:x1, :3] = layers["radiance"]
         rgba[y0:y1, x0:x1, 3] = layers["alpha"]
         outputs.store_image(IMAGE_NAME, rgba)
     return layers
+
+
+def _adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance, progress, cancel, report):
+    """H, exact mask and error estimate (all (m,) over the hit samples) by ``core.adaptive_irradiance``.
+
+    ``tolerance`` is relative to the image's mean irradiance, which is estimated first from the exact
+    values at the pixels of the adaptive pass's coarse grid (every ``DEFAULT_COARSE``-th pixel each way,
+    first sub-sample): the absolute tolerance is ``tolerance * mean(H)`` per channel. Each of the k×k
+    sub-samples of the pixels forms a regular image of its own and is interpolated separately.
+    """
+    from ..core import irradiance
+    from ..core.adaptive import DEFAULT_COARSE, adaptive_irradiance
+
+    h, w = shape
+    n_samples = len(hit)
+    p_all, n_all = np.zeros((n_samples, 3)), np.zeros((n_samples, 3))
+    g_all = np.full(n_samples, -1, dtype=np.int64)
+    p_all[hit], n_all[hit], g_all[hit] = pts, normals, src
+    p_all, n_all, g_all = p_all.reshape(h, w, k2, 3), n_all.reshape(h, w, k2, 3), g_all.reshape(h, w, k2)
+    ys = np.unique(np.r_[np.arange(0, h, DEFAULT_COARSE), h - 1])
+    xs = np.unique(np.r_[np.arange(0, w, DEFAULT_COARSE), w - 1])
+    probe = (g_all[ys[:, None], xs[None, :], 0] >= 0)
+    py, px = np.nonzero(probe)
+    mean = 0.0
+    if len(py):
+        mean = float(irradiance(core_scene, p_all[ys[py], xs[px], 0], n_all[ys[py], xs[px], 0], cancel=cancel).mean())
+    absolute = tolerance * mean
+    out_h = np.zeros((h, w, k2, 3))
+    exact = np.zeros((h, w, k2))
+    err = np.zeros((h, w, k2))
+    total = int(hit.sum())
+    done = [0]
+    for j in range(k2):
+        def prog(d, _t, base=done[0]):
+            if progress is not None:
+                progress(base + d, total)
+        hj, st = adaptive_irradiance(core_scene, p_all[:, :, j], n_all[:, :, j], g_all[:, :, j],
+                                     tolerance=absolute, progress=prog, cancel=cancel)
+        out_h[:, :, j], exact[:, :, j], err[:, :, j] = hj, st.exact_mask, st.pixel_error
+        done[0] += st.exact_points
+    report.exact_points = int(exact.sum())
+    report.tolerance = absolute
+    report.error_estimate = float(err.max()) if err.size else 0.0
+    sel = hit.reshape(h, w, k2)
+    return out_h[sel], exact[sel], err[sel]
 
 
 # -------------------------------------------------------------------------------------- vertices
@@ -748,6 +815,7 @@ def local_pass_steps(
     workers=None,
     exported=None,
     depsgraph=None,
+    tolerance=None,
 ):
     """The exact local pass on ``scene`` (default: the context's scene) as a generator: it yields a
     :class:`JobStep` after every chunk and returns the :class:`JobReport` (``StopIteration.value``).
@@ -791,6 +859,11 @@ def local_pass_steps(
             attribute settings, to reuse (the render engine's bands); default: export the scene.
         depsgraph: an evaluated depsgraph to read the objects and the camera from as it is (the
             render engine's); default: the view layer's.
+        tolerance: pixels mode: 0 (default) evaluates every pixel exactly; > 0 runs the adaptive pass
+            (``core.adaptive_irradiance``) with an error tolerance on H *relative to the image's mean
+            irradiance* (estimated from exact values on a 16-pixel grid), e.g. 1e-3; the EXR's
+            ``error_estimate`` and ``exact_sample`` layers show where it interpolated. The adaptive
+            pass neither checkpoints nor computes the ``form_factor_sum`` layer (NaN there).
 
     Returns:
         :class:`JobReport`.
@@ -825,6 +898,9 @@ def local_pass_steps(
     workers = pick(workers, "workers", 0)
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise ValueError(f"workers must be 0 (every core) or a positive number, got {workers!r}")
+    tolerance = float(pick(tolerance, "tolerance", 0.0))
+    if not (np.isfinite(tolerance) and tolerance >= 0.0):
+        raise ValueError(f"tolerance must be a number >= 0 (relative to the mean irradiance), got {tolerance}")
     if mode not in ("pixels", "vertices"):
         raise ValueError(f"mode must be 'pixels' or 'vertices', got {mode!r}")
     if not attribute:
@@ -881,7 +957,7 @@ def local_pass_steps(
         if mode == "pixels":
             yield from _run_pixels(scene, exported, report, output=output, region=region, tile=tile, resume=resume,
                         samples=samples, progress=progress, cancel=cancel, preview=preview, image=image,
-                        depsgraph=depsgraph)
+                        depsgraph=depsgraph, tolerance=tolerance)
         else:
             explicit = {n for n in (radiance_attribute, irradiance_attribute) if n}
             yield from _run_vertices(scene, view_layer, exported, report, attribute=attribute, rho_attr=rho_attr,
@@ -988,6 +1064,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--tile", metavar="I/N", help="compute row band I of N (1-based, from the top) as a partial EXR")
     r.add_argument("--resume", action="store_true", help="continue from OUTPUT.checkpoint.npz")
     r.add_argument("--samples", type=int, default=None, metavar="K", help="K x K rays per pixel")
+    r.add_argument("--tolerance", type=float, default=None, metavar="REL",
+                   help="pixels: adaptive pass with this error tolerance relative to the mean irradiance "
+                   "(e.g. 1e-3); 0 = every pixel exact (default: scene setting or 0)")
     r.add_argument("--missing", choices=("error", "black"), default=None,
                    help="objects without the attribute: error (default) or black occluders")
     r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")
@@ -1096,6 +1175,7 @@ def cli_main(argv) -> int:
             progress=reporter, status=None if reporter is None else reporter.stage, preview=not args.no_preview,
             overwrite=args.overwrite, objects=args.objects, radiance_attribute=args.radiance_attribute,
             irradiance_attribute=args.irradiance_attribute, workers=args.workers,
+            tolerance=args.tolerance,
         )
         if mode == "vertices":
             report.outputs.append(_save_blend(output))

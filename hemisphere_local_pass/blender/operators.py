@@ -24,6 +24,7 @@ def job_arguments(scene, settings: HLP_PG_settings) -> dict:
         "double_sided": settings.double_sided,
         "overwrite": scene.render.use_overwrite,  # Output Properties > Output > Overwrite, as Blender's renders
         "workers": settings.workers,
+        "tolerance": getattr(settings, "tolerance", 0.0),
     }
 
 

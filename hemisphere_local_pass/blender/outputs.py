@@ -14,6 +14,8 @@ EXR channels (all FLOAT, 32-bit; one part, scanlines, ZIP compression):
 ``Z``                 view depth (camera-space -z) of the pixel centre's hit; 1e10 for a miss
 ``object_index``      index of the hit object in the job's object list; -1 for a miss
 ``polygon_index``     polygon index inside that object's evaluated mesh; -1 for a miss
+``error_estimate``    adaptive pass: estimated error of H (W m^-2), 0 where exact
+``exact_sample``      fraction of the pixel's samples whose H was evaluated exactly (1: all)
 ===================== ============================================================
 
 Written with the OpenEXR package (ZIP compression) when it is importable (the built extension bundles
@@ -58,6 +60,9 @@ CHANNELS = {
     "form_factor_sum": ("form_factor_sum", None), "Z": ("depth", None),
     "object_index": ("object_index", None), "polygon_index": ("polygon_index", None),
 }
+#: Channels written when the layers hold them (the adaptive pass, ``core.adaptive_irradiance``): the
+#: per-pixel error estimate of H (0 where exact) and the fraction of the pixel's samples evaluated exactly.
+OPTIONAL_CHANNELS = {"error_estimate": ("error_estimate", None), "exact_sample": ("exact_sample", None)}
 #: Header attribute names of our metadata.
 _META = ("hlp_tile", "hlp_window", "hlp_fingerprint", "hlp_software")
 
@@ -220,7 +225,8 @@ def write_exr(path: str, layers: dict, *, size, window=None, metadata=None) -> s
     w_img, h_img = size
     x0, y0, x1, y1 = window if window is not None else (0, 0, w_img, h_img)
     channels = {}
-    for name, (key, comp) in CHANNELS.items():
+    optional = {n: kc for n, kc in OPTIONAL_CHANNELS.items() if kc[0] in layers}
+    for name, (key, comp) in {**CHANNELS, **optional}.items():
         arr = np.asarray(layers[key])
         arr = arr[..., comp] if comp is not None else arr
         if arr.shape != (y1 - y0, x1 - x0):
@@ -263,8 +269,8 @@ def read_exr(path: str):
     layers = {}
     for key in ("radiance", "irradiance"):
         layers[key] = np.stack([chans[n] for n, (k, _) in CHANNELS.items() if k == key], axis=-1)
-    for n, (k, comp) in CHANNELS.items():
-        if comp is None:
+    for n, (k, comp) in {**CHANNELS, **OPTIONAL_CHANNELS}.items():
+        if comp is None and n in chans:
             layers[k] = chans[n]
     return layers, (w_img, h_img), window, header
 

@@ -49,6 +49,7 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
         if settings.mode == 'PIXELS':
             col = layout.column()
             col.prop(settings, "samples")
+            col.prop(settings, "tolerance")
             col.prop(settings, "output_path")
             col.prop(context.scene.render, "use_overwrite", text="Overwrite")  # Blender's own Output > Overwrite
         else:

@@ -6,7 +6,7 @@ options as flags.
 """
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 MODE_ITEMS = (
     ('PIXELS', "Pixels", "Render the active camera's view to an image and a multi-channel OpenEXR file"),
@@ -68,6 +68,18 @@ class HLP_PG_settings(bpy.types.PropertyGroup):
         min=1,
         soft_max=8,
         max=64,
+    )
+    tolerance: FloatProperty(
+        name="Tolerance",
+        description=(
+            "Adaptive pass: largest error of the irradiance relative to the image's mean irradiance "
+            "(e.g. 0.001); pixels in between exact samples are interpolated. 0 evaluates every pixel exactly"
+        ),
+        default=0.0,
+        min=0.0,
+        soft_max=0.1,
+        precision=4,
+        step=0.01,
     )
     output_path: StringProperty(
         name="Output",

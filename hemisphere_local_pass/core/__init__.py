@@ -4,12 +4,14 @@ Pure numpy: importing this package needs nothing but numpy (no bpy, no mathutils
 
     from hemisphere_local_pass.core import Scene, form_factors, irradiance, radiance, project_point
     from hemisphere_local_pass.core import irradiance_gradient, irradiance_normal_gradient
+    from hemisphere_local_pass.core import adaptive_irradiance  # images: exact only where needed
 """
 
+from .adaptive import AdaptiveStats, adaptive_irradiance
 from .gradient import irradiance_gradient, irradiance_normal_gradient
 from .local_pass import Cancelled, form_factors, irradiance, radiance
 from .projection import Projection, project_point
 from .scene import Scene
 
-__all__ = ["Cancelled", "Projection", "Scene", "form_factors", "irradiance", "irradiance_gradient",
-           "irradiance_normal_gradient", "project_point", "radiance"]
+__all__ = ["AdaptiveStats", "Cancelled", "Projection", "Scene", "adaptive_irradiance", "form_factors", "irradiance",
+           "irradiance_gradient", "irradiance_normal_gradient", "project_point", "radiance"]

@@ -1,0 +1,80 @@
+"""The adaptive pass through the job (issue 11): ``run_local_pass(tolerance=...)``, the CLI flag, the EXR's
+error-estimate and exact-sample layers, against the all-exact job on the same Cornell box."""
+
+import importlib
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def sample_module():
+    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box_adaptive",
+                                                  os.path.join(ROOT, "sample_scenes", "cornell_box.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture
+def hlp(extension, scene):
+    base = extension.__name__
+    return {"job": importlib.import_module(base + ".blender.job"),
+            "outputs": importlib.import_module(base + ".blender.outputs")}
+
+
+def test_adaptive_job_within_tolerance_and_layers(hlp, tmp_path):
+    from hemisphere_local_pass.scenes.cornell_box import cornell_box
+
+    box = cornell_box(2)
+    values = box.emission + 0.05 + 0.3 * np.random.default_rng(3).random((box.n_polygons, 3))
+    sample_module().build(2, resolution=48, domain="FACE", reset=False, radiosity=values)
+    job = hlp["job"]
+    exact = job.run_local_pass(output=str(tmp_path / "exact.exr"), preview=False)
+    assert exact.exact_points is None
+    rel = 5e-2
+    out = str(tmp_path / "adaptive.exr")
+    rep = job.run_local_pass(output=out, preview=False, tolerance=rel)
+    h0, h1 = exact.result["irradiance"], rep.result["irradiance"]
+    mean = h0[exact.result["alpha"] > 0].mean()
+    # the job's tolerance is relative to the mean irradiance, estimated on the coarse grid
+    assert rep.tolerance == pytest.approx(rel * mean, rel=0.5)
+    assert np.abs(h1 - h0).max() <= rep.tolerance
+    assert 0 < rep.exact_points < 48 * 48 and rep.error_estimate <= rep.tolerance
+    mask, est = rep.result["exact_sample"], rep.result["error_estimate"]
+    assert set(np.unique(mask)) <= {0.0, 1.0} and (est[mask == 1] == 0).all()
+    # exact samples come from core.irradiance; the exact job may take its one-call form-factor path
+    # (H = pi sum F L, summed in another order): equal to rounding
+    np.testing.assert_allclose(h1[mask == 1], h0[mask == 1], rtol=1e-12, atol=1e-14)
+    assert "adaptive" in rep.summary()
+    layers, *_ = hlp["outputs"].read_exr(out)
+    np.testing.assert_allclose(layers["error_estimate"], est, rtol=1e-6, atol=1e-30)
+    np.testing.assert_array_equal(layers["exact_sample"], mask)
+    with pytest.raises(ValueError, match="tolerance"):
+        job.run_local_pass(output=out, tolerance=-1.0)
+
+
+def test_cli_tolerance_flag(hlp, tmp_path, capsys):
+    sample_module().build(1, resolution=12, domain="FACE", reset=False)
+    out = str(tmp_path / "cli.exr")
+    code = hlp["job"].cli_main(["render", "--output", out, "--tolerance", "0.01", "--quiet", "--no-preview"])
+    assert code == 0, capsys.readouterr().err
+    assert "adaptive" in capsys.readouterr().out
+    layers, *_ = hlp["outputs"].read_exr(out)
+    assert layers["exact_sample"].max() == 1.0
+
+
+def test_adaptive_with_supersampling(hlp, tmp_path):
+    """k×k samples per pixel: each sub-sample position is its own image; the pixel layers are means."""
+    sample_module().build(2, resolution=20, domain="FACE", reset=False)
+    job = hlp["job"]
+    exact = job.run_local_pass(output=str(tmp_path / "e.exr"), preview=False, samples=2)
+    rep = job.run_local_pass(output=str(tmp_path / "a.exr"), preview=False, samples=2, tolerance=1e-2)
+    assert np.abs(rep.result["irradiance"] - exact.result["irradiance"]).max() <= rep.tolerance
+    frac = rep.result["exact_sample"]
+    assert set(np.unique(frac)) <= {0.0, 0.25, 0.5, 0.75, 1.0} and rep.exact_points == int(round(frac.sum() * 4))
