@@ -34,7 +34,8 @@ def register():
             bpy.utils.register_class(cls)
     bpy.types.Scene.hlp_settings = bpy.props.PointerProperty(type=props.HLP_PG_settings)
     for module in modules:
-        module.register()
+        if not all(cls.is_registered for cls in module.classes):  # registered already: draw hooks too
+            module.register()
     if hasattr(bpy.utils, "register_cli_command") and _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command(cli.COMMAND, cli.handler)
 
