@@ -7,7 +7,7 @@ safe to call repeatedly (register/unregister/register/unregister).
 
 import bpy
 
-from . import cli, operators, panels, props
+from . import cli, first_pass_ui, operators, panels, props
 
 __all__ = ["classes", "register", "unregister"]
 
@@ -15,6 +15,7 @@ classes = (
     props.HLP_PG_settings,
     operators.HLP_OT_render_local_pass,
     panels.HLP_PT_local_pass,
+    *first_pass_ui.classes,
 )
 
 #: Handle returned by ``bpy.utils.register_cli_command`` (None when not registered / Blender < 4.2).
@@ -26,6 +27,7 @@ def register():
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.types.Scene.hlp_settings = bpy.props.PointerProperty(type=props.HLP_PG_settings)
+    bpy.types.Scene.hlp_first_pass = bpy.props.PointerProperty(type=first_pass_ui.HLP_PG_first_pass)
     if hasattr(bpy.utils, "register_cli_command") and _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command(cli.COMMAND, cli.handler)
 
@@ -37,6 +39,8 @@ def unregister():
         _cli_handle = None
     if hasattr(bpy.types.Scene, "hlp_settings"):
         del bpy.types.Scene.hlp_settings
+    if hasattr(bpy.types.Scene, "hlp_first_pass"):
+        del bpy.types.Scene.hlp_first_pass
     for cls in reversed(classes):
         if getattr(cls, "is_registered", True):
             bpy.utils.unregister_class(cls)
