@@ -70,7 +70,8 @@ def _material(bpy, name, rho, emit):
 
 
 def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", reset: bool = True,
-          radiosity=None, size: float = 1.0, block_detail: float = 1.0, tolerance=None, quiet: bool = False):
+          radiosity=None, size: float = 1.0, block_detail: float = 1.0, tolerance=None, quiet: bool = False,
+          solve: bool = True, order=None):
     """Build the Cornell box into the current Blender session; returns ``(scene, box, radiosity)``.
 
     Args:
@@ -81,6 +82,8 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
         radiosity: (n, 3) per-polygon values to store instead of the first pass's solution.
         block_detail: the blocks' cell size relative to the room's (``scenes.cornell_box``).
         tolerance: the first pass's stopping tolerance (default: ``first_pass.DEFAULT_TOLERANCE``).
+        solve: run the first pass when ``radiosity`` is not given (False: geometry, materials and camera
+            only, no attribute; the returned values are then None).
     """
     import bpy
 
@@ -152,8 +155,8 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
             if node.type == "BACKGROUND":
                 node.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     bpy.context.view_layer.update()
-    if values is None:
-        first_pass(scene, tolerance=tolerance, quiet=quiet)
+    if values is None and solve:
+        first_pass(scene, tolerance=tolerance, order=order, quiet=quiet)
         values = np.zeros((box.n_polygons, 3))
         for part in dict.fromkeys(box.names):  # the solution in the box's polygon order
             mesh = bpy.data.objects[part.title().replace(" ", "")].data
