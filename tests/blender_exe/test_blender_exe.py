@@ -307,3 +307,25 @@ def test_subprocess_python_is_not_blenders():
     """Sanity: this test process is plain Python (the core venv), not Blender's."""
     assert "bpy" not in sys.modules
     assert subprocess.run([sys.executable, "-c", "import hemisphere_local_pass"], cwd=ROOT).returncode == 0
+
+
+def test_first_pass_in_blender_3_4(blender, blender_env, sample_blend, tmp_path):
+    """Blender 3.4 solves the first pass on the sample (replacing the attribute it made), and builds the
+    furnished room with its own script: samples are built in the Blender that renders them."""
+    expr = python_expr(
+        "import bpy, json, hemisphere_local_pass as h",
+        "report = h.solve_first_pass(tolerance=1e-2)",
+        "print('HLP-RESULT ' + json.dumps({'meshes': len(report.meshes), 'replaced': len(report.replaced),",
+        "      'converged': report.result.converged, 'balance': report.result.balance_error}))",
+    )
+    result = run_blender([blender, *HEADLESS, sample_blend, "--python-expr", expr], blender_env)
+    assert_no_python_error(result)
+    info = result_json(result)
+    assert info["converged"] and info["meshes"] == 9 and info["replaced"] == 9 and info["balance"] < 1e-12
+    out = tmp_path / "room.blend"
+    script = os.path.join(ROOT, "sample_scenes", "furnished_room.py")
+    cmd = [blender, *HEADLESS, "--python", script, "--", str(out), "--detail", "1", "--resolution", "8",
+           "--tolerance", "0.05"]
+    result = run_blender(cmd, dict(blender_env, PYTHONDONTWRITEBYTECODE="1"))
+    assert result.returncode == 0 and out.exists(), result.stdout + result.stderr
+    assert "first pass converged" in result.stderr
