@@ -54,10 +54,11 @@ class HLP_OT_solve_radiosity(bpy.types.Operator):
 
     def execute(self, context):
         from ..core import Cancelled
-        from .first_pass import solve_first_pass
+        from .first_pass import StderrProgress, solve_first_pass
 
-        try:
-            report = solve_first_pass(context.scene)
+        try:  # without a window (background, scripts): progress lines on stderr
+            report = solve_first_pass(context.scene, progress=StderrProgress(interval=5.0) if bpy.app.background
+                                      else None)
         except (Cancelled, KeyboardInterrupt):
             self.report({'WARNING'}, "First pass cancelled; the scene is unchanged")
             return {'CANCELLED'}
