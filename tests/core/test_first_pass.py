@@ -221,3 +221,22 @@ def test_validation_names_the_polygon():
     # nothing emits: the solution is E = 0, converged at once
     r = solve_radiosity(scene, 0.5, np.zeros((box.n_polygons, 3)))
     assert r.converged and r.shots == 0 and not r.radiance.any()
+
+
+def test_fixed_point_double_sided():
+    # two facing squares and a tilted third one, double-sided: L = E + ρ F (L − ΔL) with the solver's F
+    sq = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    tilted = np.array([[1.2, 0, 0.2], [1.2, 1, 0.2], [1.6, 1, 0.8], [1.6, 0, 0.8]])
+    verts, polys = _polygons([sq, sq[::-1] + [0, 0, 0.7], tilted])
+    scene = Scene.from_polygons(verts, polys, double_sided=True)
+    emission = np.array([[0, 0, 0], [2.0, 1.5, 1.0], [0, 0, 0]])
+    rho = np.array([[0.6, 0.5, 0.4], [0.3, 0.3, 0.3], [0.8, 0.7, 0.2]])
+    r = solve_radiosity(scene, rho, emission, tolerance=1e-3)
+    f, area = _dense_f(scene, double_sided=True)
+
+    def gathered(values):
+        return (f.T @ (area[:, None] * values)) / area[:, None]
+
+    residual = r.radiance - emission - rho * gathered(r.radiance)
+    np.testing.assert_allclose(residual, -rho * gathered(r.unshot), rtol=0, atol=1e-13 * r.radiance.max())
+    assert r.balance_error < 1e-12 and (r.sides == 2).all()
