@@ -116,7 +116,8 @@ def main(argv=None):
         old[r["name"]] = (f"| {r['name']} | {r['solve']:.0f} s | {r['local']:.0f} s ({r['points']} points) | "
                           f"{r['cycles']:.0f} s | {cmd} ({stamp}) | ![{r['name']}]({r['name']}.png) |")
     lines = ["Left: the exact local pass; right: Cycles path tracing of the scene's own materials with its time limit "
-             "set to the local pass's time (2 shared cores, other jobs running). Each row was made by its command.",
+             "set to the local pass's time (2 shared cores, other jobs running). Each row gives the command that "
+             "regenerates it.",
              "", "| sample | build + first pass | local pass | Cycles (time limit) | command | picture |",
              "|---|---|---|---|---|---|"]
     lines += [old[k] for k in sorted(old)]
