@@ -16,11 +16,16 @@ bl_info = {
 
 
 def __getattr__(name):
-    """``hemisphere_local_pass.run_local_pass``: the batch job, imported (with bpy) on first use."""
+    """``hemisphere_local_pass.run_local_pass`` / ``solve_first_pass``: the batch jobs, imported (with bpy) on
+    first use."""
     if name == "run_local_pass":
         from .blender.job import run_local_pass
 
         return run_local_pass
+    if name == "solve_first_pass":
+        from .blender.first_pass import solve_first_pass
+
+        return solve_first_pass
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

@@ -12,10 +12,14 @@ The box comes from ``hemisphere_local_pass.scenes.cornell_box`` (closed; the cla
 outside, in front of the front wall, and its near clip plane lies just inside that wall). One mesh
 object per part (floor, ceiling, light, walls, blocks), each with a Principled BSDF material (base
 colour = reflectivity rho, emission colour x strength = E for the light) and a ``radiosity``
-FLOAT_COLOR attribute: the first pass's radiance per polygon from
-``hemisphere_local_pass.scenes.radiosity`` (FACE domain), or with ``domain="POINT"`` the mean of the
-adjacent polygons' values at each vertex (linearly varying radiance). If the radiosity solver is not
-available the radiosity is the emission alone (direct light only), and the script says so.
+FLOAT_COLOR attribute: the first pass's radiance per polygon, solved in this Blender session by
+``hemisphere_local_pass.blender.first_pass`` (FACE domain, exactly what the operator and the ``solve``
+command write), or with ``domain="POINT"`` the mean of the adjacent polygons' values at each vertex
+(linearly varying radiance).
+
+Build the scene in the Blender that will render it: a .blend saved by a newer Blender (e.g. the bpy 4.2
+module) crashes Debian's Blender 3.4 when opened (Blender's forward-compatibility limit), so
+``blender -b --python sample_scenes/cornell_box.py -- out.blend`` with that Blender, not a copy.
 """
 
 from __future__ import annotations
@@ -36,17 +40,16 @@ def _import_package():
         sys.path.insert(0, _ROOT)
 
 
-def first_pass(box):
-    """(n, 3) per-polygon radiance of the box's radiosity solution (or the emission, with a notice)."""
+def first_pass(scene=None, *, tolerance=None, order=None, quiet=False):
+    """Solve the first pass in this Blender session (``hemisphere_local_pass.blender.first_pass``): writes
+    the FACE-domain ``radiosity`` attribute on every mesh; returns the report (progress on stderr)."""
     _import_package()
-    try:
-        from hemisphere_local_pass.scenes.radiosity import radiosity
+    from hemisphere_local_pass.blender.first_pass import StderrProgress, solve_first_pass
 
-        values = radiosity(box.vertices, box.polygons, box.reflectivity, box.emission)
-        return np.asarray(values, dtype=np.float64).reshape(box.n_polygons, 3), "radiosity"
-    except (ImportError, NotImplementedError) as exc:
-        print(f"cornell_box: radiosity solver unavailable ({exc!s}); radiosity = emission only", file=sys.stderr)
-        return np.asarray(box.emission, dtype=np.float64), "emission"
+    report = solve_first_pass(scene, tolerance=tolerance, order=order,
+                              progress=None if quiet else StderrProgress(interval=5.0))
+    print(f"cornell_box: {report.summary()}", file=sys.stderr)
+    return report
 
 
 def _material(bpy, name, rho, emit):
@@ -67,7 +70,8 @@ def _material(bpy, name, rho, emit):
 
 
 def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", reset: bool = True,
-          radiosity=None, size: float = 1.0):
+          radiosity=None, size: float = 1.0, block_detail: float = 1.0, tolerance=None, quiet: bool = False,
+          solve: bool = True, order=None):
     """Build the Cornell box into the current Blender session; returns ``(scene, box, radiosity)``.
 
     Args:
@@ -76,17 +80,23 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
         domain: "FACE" (constant radiosity per polygon) or "POINT" (per-vertex means, linear).
         reset: start from an empty factory scene.
         radiosity: (n, 3) per-polygon values to store instead of the first pass's solution.
+        block_detail: the blocks' cell size relative to the room's (``scenes.cornell_box``).
+        tolerance: the first pass's stopping tolerance (default: ``first_pass.DEFAULT_TOLERANCE``).
+        solve: run the first pass when ``radiosity`` is not given (False: geometry, materials and camera
+            only, no attribute; the returned values are then None).
     """
     import bpy
 
     _import_package()
     from hemisphere_local_pass.scenes.cornell_box import cornell_box
 
+    if domain not in ("FACE", "POINT"):
+        raise ValueError(f"domain must be FACE or POINT, got {domain!r}")
     if reset:
         bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
-    box = cornell_box(subdivisions, size=size)
-    values = first_pass(box)[0] if radiosity is None else np.asarray(radiosity, dtype=np.float64)
+    box = cornell_box(subdivisions, size=size, block_detail=block_detail)
+    values = None if radiosity is None else np.asarray(radiosity, dtype=np.float64)
     loops, start, total = box.loops()
     names = np.array(box.names)
     for part in dict.fromkeys(box.names):  # one object per part, in order of appearance
@@ -101,6 +111,11 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
         mesh = bpy.data.meshes.new(part)
         mesh.from_pydata(verts.tolist(), [], polys)
         mesh.update()
+        ob = bpy.data.objects.new(part.title().replace(" ", ""), mesh)
+        mesh.materials.append(_material(bpy, part, box.reflectivity[sel[0]], box.emission[sel[0]]))
+        scene.collection.objects.link(ob)
+        if values is None:
+            continue  # solved below, by the first pass
         val = values[sel]
         if domain == "FACE":
             attr = mesh.attributes.new("radiosity", "FLOAT_COLOR", "FACE")
@@ -117,9 +132,6 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
             raise ValueError(f"domain must be FACE or POINT, got {domain!r}")
         rgba = np.concatenate([data, np.ones((len(data), 1))], axis=1).astype(np.float32)
         attr.data.foreach_set("color", rgba.reshape(-1))
-        ob = bpy.data.objects.new(part.title().replace(" ", ""), mesh)
-        mesh.materials.append(_material(bpy, part, box.reflectivity[sel[0]], box.emission[sel[0]]))
-        scene.collection.objects.link(ob)
     cam_data = bpy.data.cameras.new("Camera")
     cam_data.sensor_fit = "AUTO"
     cam_data.angle = float(box.camera["fov"])
@@ -143,7 +155,41 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
             if node.type == "BACKGROUND":
                 node.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     bpy.context.view_layer.update()
+    if values is None and solve:
+        first_pass(scene, tolerance=tolerance, order=order, quiet=quiet)
+        values = np.zeros((box.n_polygons, 3))
+        for part in dict.fromkeys(box.names):  # the solution in the box's polygon order
+            mesh = bpy.data.objects[part.title().replace(" ", "")].data
+            got = np.empty(4 * len(mesh.polygons), dtype=np.float32)
+            mesh.attributes["radiosity"].data.foreach_get("color", got)
+            values[names == part] = got.reshape(-1, 4)[:, :3]
+        if domain == "POINT":
+            _face_to_point(bpy, scene)
     return scene, box, values
+
+
+def _face_to_point(bpy, scene):
+    """Replace every mesh's FACE ``radiosity`` by its POINT version: the mean of the adjacent faces' values."""
+    for ob in scene.collection.objects:
+        if ob.type != "MESH":
+            continue
+        mesh = ob.data
+        n = len(mesh.polygons)
+        face = np.empty(4 * n, dtype=np.float32)
+        mesh.attributes["radiosity"].data.foreach_get("color", face)
+        face = face.reshape(n, 4)[:, :3].astype(np.float64)
+        loops = np.empty(len(mesh.loops), dtype=np.int32)
+        mesh.loops.foreach_get("vertex_index", loops)
+        total = np.empty(n, dtype=np.int32)
+        mesh.polygons.foreach_get("loop_total", total)
+        acc = np.zeros((len(mesh.vertices), 3))
+        cnt = np.zeros(len(mesh.vertices))
+        np.add.at(acc, loops, np.repeat(face, total, axis=0))
+        np.add.at(cnt, loops, 1.0)
+        mesh.attributes.remove(mesh.attributes["radiosity"])
+        attr = mesh.attributes.new("radiosity", "FLOAT_COLOR", "POINT")
+        rgba = np.concatenate([acc / np.maximum(cnt, 1)[:, None], np.ones((len(cnt), 1))], axis=1)
+        attr.data.foreach_set("color", rgba.astype(np.float32).reshape(-1))
 
 
 def main(argv):
@@ -156,8 +202,11 @@ def main(argv):
     parser.add_argument("--subdivisions", type=int, default=4)
     parser.add_argument("--resolution", type=int, default=64)
     parser.add_argument("--domain", choices=("FACE", "POINT"), default="FACE")
+    parser.add_argument("--block-detail", type=float, default=1.0, help="blocks' cell size relative to the room's")
+    parser.add_argument("--tolerance", type=float, default=None, help="first pass: unshot / emitted power at the end")
     args = parser.parse_args(argv)
-    build(args.subdivisions, resolution=args.resolution, domain=args.domain)
+    build(args.subdivisions, resolution=args.resolution, domain=args.domain, block_detail=args.block_detail,
+          tolerance=args.tolerance)
     out = os.path.abspath(args.output)
     os.makedirs(os.path.dirname(out), exist_ok=True)
     bpy.ops.wm.save_as_mainfile(filepath=out)

@@ -1,4 +1,4 @@
-"""``blender -b [scene.blend] -c hemisphere_local_pass render|merge ...``: the command-line entry point.
+"""``blender -b [scene.blend] -c hemisphere_local_pass render|merge|solve ...``: the command-line entry point.
 
 Registered with ``bpy.utils.register_cli_command`` (Blender 4.2+) by ``registration.register()``.
 The handler is an argparse program that makes no UI calls and returns the process exit code; the
@@ -12,6 +12,7 @@ import argparse
 import sys
 
 COMMAND = "hemisphere_local_pass"
+SUBCOMMANDS = ("render", "merge", "solve")
 PROG = f"blender --command {COMMAND}"
 
 __all__ = ["COMMAND", "PROG", "handler"]
@@ -24,7 +25,8 @@ def _parser() -> argparse.ArgumentParser:
         epilog=f"Run '{PROG} SUBCOMMAND --help' for the options of a sub-command.",
         add_help=False,
     )
-    parser.add_argument("subcommand", nargs="?", choices=("render", "merge"), help="render (default help) or merge")
+    parser.add_argument("subcommand", nargs="?", choices=SUBCOMMANDS,
+                        help="render, merge or solve (the first pass)")
     parser.add_argument("-h", "--help", action="store_true", help="show this help message and exit")
     parser.add_argument("--version", action="store_true", help="print the extension's version and exit")
     return parser
@@ -55,9 +57,9 @@ def handler(argv: list[str]) -> int:
     if argv[0] == "--version":
         print(f"{COMMAND} {_version()}")
         return 0
-    if argv[0].startswith("-") or argv[0] not in ("render", "merge"):
+    if argv[0].startswith("-") or argv[0] not in SUBCOMMANDS:
         parser.print_usage(sys.stderr)
-        print(f"{PROG}: error: expected a sub-command 'render' or 'merge', got '{argv[0]}'", file=sys.stderr)
+        print(f"{PROG}: error: expected a sub-command 'render', 'merge' or 'solve', got '{argv[0]}'", file=sys.stderr)
         return 2
     try:
         from . import job

@@ -1052,7 +1052,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="blender --command hemisphere_local_pass",
         description="Exact local pass of two-pass global illumination for the loaded .blend file.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="{render,merge}")
+    sub = parser.add_subparsers(dest="command", metavar="{render,merge,solve}")
     sub.required = True
     r = sub.add_parser("render", help="compute the local pass (pixels: EXR + PNG; vertices: colour attributes)")
     r.add_argument("--output", "-o", help="pixels: the OpenEXR file (a PNG preview goes next to it); "
@@ -1081,6 +1081,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", "-j", type=int, default=None, metavar="N",
                    help="worker processes (0: every core this process may use, the default; 1: none)")
     r.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
+    sub.add_parser("solve", add_help=False, help="first pass: solve radiosity and write the FACE-domain attribute "
+                   "(options: solve --help; hemisphere_local_pass.blender.first_pass)")
     m = sub.add_parser("merge", help="assemble tile EXRs into one image (and its PNG preview)")
     m.add_argument("tiles", nargs="+", metavar="TILE_FILES")
     m.add_argument("--output", "-o", required=True)
@@ -1135,6 +1137,10 @@ def _save_blend(path: str) -> str:
 def cli_main(argv) -> int:
     """The ``blender --command hemisphere_local_pass`` program: returns the exit code; errors are
     one line on stderr (exit 1), Ctrl-C exits 130 after the finished chunks are saved."""
+    if list(argv)[:1] == ["solve"]:  # the first pass: its own program (blender/first_pass.py)
+        from .first_pass import cli_main as solve_main
+
+        return solve_main(list(argv)[1:])
     parser = build_parser()
     args = parser.parse_args(list(argv))
     prefix = "hemisphere_local_pass: "

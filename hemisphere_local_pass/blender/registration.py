@@ -8,7 +8,7 @@ is harmless.
 
 import bpy
 
-from . import cli, engine, inspector, modal, operators, panels, props
+from . import cli, engine, first_pass_ui, inspector, modal, operators, panels, props
 
 __all__ = ["classes", "register", "unregister"]
 
@@ -16,6 +16,7 @@ classes = (
     props.HLP_PG_settings,
     operators.HLP_OT_render_local_pass,
     panels.HLP_PT_local_pass,
+    *first_pass_ui.classes,
 )
 
 #: Modules with their own ``register()`` / ``unregister()`` (after ``classes``, undone before them).
@@ -33,6 +34,7 @@ def register():
         if not cls.is_registered:
             bpy.utils.register_class(cls)
     bpy.types.Scene.hlp_settings = bpy.props.PointerProperty(type=props.HLP_PG_settings)
+    bpy.types.Scene.hlp_first_pass = bpy.props.PointerProperty(type=first_pass_ui.HLP_PG_first_pass)
     for module in modules:
         if not all(cls.is_registered for cls in module.classes):  # registered already: draw hooks too
             module.register()
@@ -49,6 +51,8 @@ def unregister():
         module.unregister()
     if hasattr(bpy.types.Scene, "hlp_settings"):
         del bpy.types.Scene.hlp_settings
+    if hasattr(bpy.types.Scene, "hlp_first_pass"):
+        del bpy.types.Scene.hlp_first_pass
     for cls in reversed(classes):
         if getattr(cls, "is_registered", True):
             bpy.utils.unregister_class(cls)

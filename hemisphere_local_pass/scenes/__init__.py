@@ -1,4 +1,4 @@
-"""Procedural test and sample scenes (pure numpy) and a simple radiosity first pass."""
+"""Procedural test and sample scenes (pure numpy); ``radiosity()`` wraps the first pass (``..first_pass``)."""
 
 from .cornell_box import PAPER_SETTINGS, CornellBox, camera_rays, cornell_box
 from .radiosity import centroid_form_factors, gathered_radiance, radiosity

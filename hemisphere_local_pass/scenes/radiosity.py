@@ -1,4 +1,9 @@
-"""A simple first pass: gathering radiosity with point-to-polygon form factors (pure numpy).
+"""Compatibility wrapper of the first pass, and the dense centre-to-polygon reference (pure numpy).
+
+:func:`radiosity` solves with :mod:`hemisphere_local_pass.first_pass` (progressive refinement, O(n)
+memory, patch-to-patch factors from several exact point-to-polygon evaluations per shooter) unless a
+``form_factor_matrix`` is given; then it iterates on that matrix as before (a reference for small scenes,
+used by tests and benchmarks). The dense path:
 
 Every polygon i is represented by its centre ``c_i`` and normal ``n_i``; ``F[i, j]`` is the exact
 visible form factor from that point to polygon j (the core's :func:`~..core.form_factors`, which
@@ -60,6 +65,7 @@ def radiosity(
     iterations: int = 200,
     tol: float = 1e-10,
     progress=None,
+    tolerance: float | None = None,
 ) -> np.ndarray:
     """Per-polygon radiance ``L (n, 3)`` (W sr^-1 m^-2) of a diffuse polygonal scene.
 
@@ -68,10 +74,14 @@ def radiosity(
         reflectivity: (n, 3) or (n,) diffuse reflectivity ρ in [0, 1).
         emission: (n, 3) or (n,) emitted radiance E of the front side.
         form_factor_matrix: optional precomputed ``(n, n)`` centre-to-polygon form factors (e.g. from
-            :func:`centroid_form_factors`); computed with the core when omitted.
-        iterations: maximum Jacobi sweeps; stops early when the largest change is below
+            :func:`centroid_form_factors`), solved by Jacobi sweeps; when omitted the first pass
+            (:func:`hemisphere_local_pass.first_pass.solve_radiosity`) solves without any matrix.
+        iterations: maximum Jacobi sweeps (matrix only); stops early when the largest change is below
             ``tol`` times the largest radiance.
-        progress: ``progress(done, total)`` while the form factors are computed.
+        progress: ``progress(done, total)``: form-factor rows (matrix), or per mille of the first pass's
+            logarithmic progress.
+        tolerance: the first pass's stopping tolerance (unshot / emitted power; default
+            ``first_pass.DEFAULT_TOLERANCE``).
 
     Returns:
         (n, 3) float64 radiance L_i = E_i + ρ_i Σ_j F_ij L_j (the first pass, pass it to the local pass as
@@ -85,16 +95,16 @@ def radiosity(
         raise ValueError("reflectivity must lie in [0, 1)")
     if form_factor_matrix is None:
         from ..core import Scene
+        from ..first_pass import DEFAULT_TOLERANCE, solve_radiosity
 
         scene = Scene.from_polygons(verts, polygons)
         if scene.dropped:
             i = next(iter(scene.dropped))
             raise ValueError(f"polygon {i} is degenerate ({scene.dropped[i]})")
-        centres = np.array([verts[p].mean(axis=0) for p in polygons])
-        normals = np.zeros((n, 3))
-        np.add.at(normals, scene.poly_source, scene.poly_normals)  # triangulated polygons: mean normal
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        form_factor_matrix = centroid_form_factors(scene, centres, normals, progress=progress)
+        report = None if progress is None else (lambda p: progress(int(1000 * p.fraction_done), 1000))
+        result = solve_radiosity(scene, rho, emit, tolerance=DEFAULT_TOLERANCE if tolerance is None else tolerance,
+                                 progress=report)
+        return result.radiance
     f = form_factor_matrix
     if f.shape != (n, n):
         raise ValueError(f"form_factor_matrix must have shape ({n}, {n}), got {f.shape}")

@@ -343,3 +343,108 @@ def test_workers_under_blender_34(blender, blender_env, sample_blend, tmp_path):
     assert info["bpy"] == [] and info["numpy"][0] == info["numpy"][1]
     assert info["children"] == []
     assert one.read_bytes() == two.read_bytes()
+def test_first_pass_in_blender_3_4(blender, blender_env, sample_blend, tmp_path):
+    """Blender 3.4 solves the first pass on the sample (replacing the attribute it made), and builds the
+    furnished room with its own script: samples are built in the Blender that renders them."""
+    expr = python_expr(
+        "import bpy, json, hemisphere_local_pass as h",
+        "report = h.solve_first_pass(tolerance=1e-2)",
+        "print('HLP-RESULT ' + json.dumps({'meshes': len(report.meshes), 'replaced': len(report.replaced),",
+        "      'converged': report.result.converged, 'balance': report.result.balance_error}))",
+    )
+    result = run_blender([blender, *HEADLESS, sample_blend, "--python-expr", expr], blender_env)
+    assert_no_python_error(result)
+    info = result_json(result)
+    assert info["converged"] and info["meshes"] == 9 and info["replaced"] == 9 and info["balance"] < 1e-12
+    out = tmp_path / "room.blend"
+    script = os.path.join(ROOT, "sample_scenes", "furnished_room.py")
+    cmd = [blender, *HEADLESS, "--python", script, "--", str(out), "--detail", "1", "--resolution", "8",
+           "--tolerance", "0.05"]
+    result = run_blender(cmd, dict(blender_env, PYTHONDONTWRITEBYTECODE="1"))
+    assert result.returncode == 0 and out.exists(), result.stdout + result.stderr
+    assert "first pass converged" in result.stderr
+
+
+SOLVE_UI_EXPR = r"""
+import json, traceback
+import bpy
+import hemisphere_local_pass as h
+
+RESULT = {result!r}
+h.register()
+state = {{'ticks': 0, 'phase': 'start', 'invoked': None, 'cancelled_unchanged': None}}
+
+def finish(ok, **extra):
+    state.update(extra)
+    with open(RESULT, 'w') as fh:
+        json.dump({{'ok': ok, **state}}, fh)
+    bpy.ops.wm.quit_blender()
+
+def strip():
+    for m in bpy.data.meshes:
+        a = m.attributes.get('radiosity')
+        if a is not None:
+            m.attributes.remove(a)
+
+def solved():
+    return all('radiosity' in m.attributes for m in bpy.data.meshes)
+
+def invoke(window, tolerance):
+    window.scene.hlp_first_pass.tolerance = tolerance
+    area = next(a for a in window.screen.areas if a.type == 'PROPERTIES')
+    with bpy.context.temp_override(window=window, area=area):
+        return sorted(bpy.ops.hlp.solve_radiosity('INVOKE_DEFAULT'))
+
+def tick():
+    try:
+        state['ticks'] += 1
+        window = bpy.context.window_manager.windows[0]
+        if state['phase'] == 'start':        # modal run to the end
+            strip()
+            state['invoked'] = invoke(window, 1e-2)
+            state['phase'] = 'running'
+        elif state['phase'] == 'running':
+            if solved():
+                strip()                      # then one that Esc cancels
+                invoke(window, 1e-9)
+                state['phase'] = 'escape'
+                state['escape_at'] = state['ticks'] + 3
+        elif state['phase'] == 'escape' and state['ticks'] >= state['escape_at']:
+            window.event_simulate(type='ESC', value='PRESS')
+            window.event_simulate(type='ESC', value='RELEASE')
+            state['phase'] = 'after'
+            state['after_at'] = state['ticks'] + 8
+        elif state['phase'] == 'after' and state['ticks'] >= state['after_at']:
+            state['cancelled_unchanged'] = not any('radiosity' in m.attributes for m in bpy.data.meshes)
+            state['tags_left'] = any('hlp_first_pass_origin' in m.attributes for m in bpy.data.meshes)
+            finish(True)
+            return None
+        if state['ticks'] > 400:
+            finish(False, error='timed out in phase ' + state['phase'])
+            return None
+        return 0.25
+    except Exception:
+        finish(False, error=traceback.format_exc())
+        return None
+
+bpy.app.timers.register(tick, first_interval=0.5)
+"""
+
+
+def test_solve_radiosity_modal_in_the_ui_and_escape(blender, xvfb_run, blender_env, sample_blend, tmp_path):
+    """The operator runs modally in a real window (status bar progress) and Esc leaves the scene unchanged."""
+    result_file = tmp_path / "solve_ui.json"
+    expr = python_expr(SOLVE_UI_EXPR.format(result=str(result_file)))
+    cmd = [
+        xvfb_run, "-a", "-s", "-screen 0 1280x800x24",
+        blender, "--factory-startup", "--enable-event-simulate", "--python-exit-code", "1", sample_blend,
+        "--python-expr", expr,
+    ]  # fmt: skip
+    result = run_blender(cmd, dict(blender_env, LIBGL_ALWAYS_SOFTWARE="1"), timeout=300)
+    report = f"exit {result.returncode}\n--- stdout\n{result.stdout}\n--- stderr\n{result.stderr}"
+    assert result_file.exists(), report
+    info = json.loads(result_file.read_text())
+    assert info["ok"], f"{info}\n{report}"
+    assert info["invoked"] == ["RUNNING_MODAL"], info
+    assert info["cancelled_unchanged"] is True and info["tags_left"] is False, info
+    assert_no_python_error(result)

@@ -1,0 +1,130 @@
+"""Regenerate the user guide's pictures: every sample's local pass beside Cycles at equal time.
+
+    bash scripts/make_docs_images.sh [--samples cornell_box,numerical_traps,...] [--resolution 96]
+
+(runs this file in the bpy 4.2 venv). For each sample: build and solve it with its own script
+(sample_scenes/NAME.py), render the exact local pass (the batch job, pixels mode), then Cycles with the
+scene's own materials (full path tracing, default bounces, Standard view transform) with its time limit
+set to the local pass's time, and write ``docs/guide/NAME.png`` (local pass left, Cycles right) and the
+table in ``docs/guide/images.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+GUIDE = os.path.join(ROOT, "docs", "guide")
+DEFAULT = "cornell_box,numerical_traps,furnished_room"
+ARGS = {"cornell_box": ["--subdivisions", "4"], "cornell_box_9500": [], "furnished_room": [], "numerical_traps": [],
+        "cornell_box_100k": []}
+
+
+def load(name):
+    spec = importlib.util.spec_from_file_location(f"sample_{name}", os.path.join(ROOT, "sample_scenes", f"{name}.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def pixels(path):
+    import bpy
+
+    img = bpy.data.images.load(path)
+    w, h = img.size
+    px = np.empty(4 * w * h, dtype=np.float32)
+    img.pixels.foreach_get(px)
+    bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)
+
+
+def save_png(path, rgba):
+    import bpy
+
+    h, w = rgba.shape[:2]
+    img = bpy.data.images.new(".guide", w, h, alpha=False)
+    img.pixels.foreach_set(rgba.astype(np.float32).reshape(-1))
+    img.filepath_raw = path
+    img.file_format = "PNG"
+    img.save()
+    bpy.data.images.remove(img)
+
+
+def one(name, resolution, tmp):
+    import bpy
+
+    from hemisphere_local_pass.blender import job
+
+    t0 = time.perf_counter()
+    load(name).main([os.path.join(tmp, f"{name}.blend"), "--resolution", str(resolution), *ARGS[name]])
+    solve_s = time.perf_counter() - t0
+    scene = bpy.context.scene
+    exr = os.path.join(tmp, f"{name}.exr")
+    report = job.run_local_pass(scene, output=exr, mode="pixels", samples=1)
+    local_s = report.seconds
+    left = pixels(next(p for p in report.outputs if p.endswith(".png")))
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = 1 << 16
+    scene.cycles.use_denoising = False
+    scene.cycles.time_limit = max(local_s, 1.0)
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = 2
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = os.path.join(tmp, f"{name}_cycles.png")
+    t1 = time.perf_counter()
+    bpy.ops.render.render(write_still=True)
+    cycles_s = time.perf_counter() - t1
+    right = pixels(scene.render.filepath)
+    gap = np.ones((left.shape[0], 4, 4), dtype=np.float32)
+    os.makedirs(GUIDE, exist_ok=True)
+    save_png(os.path.join(GUIDE, f"{name}.png"), np.concatenate([left, gap, right], axis=1))
+    n = len(report.objects)
+    return dict(name=name, solve=solve_s, local=local_s, cycles=cycles_s, points=report.points, objects=n)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", default=DEFAULT)
+    ap.add_argument("--resolution", type=int, default=96)
+    args = ap.parse_args(argv)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.samples.split(","):
+            rows.append(one(name, args.resolution, tmp))
+            print(rows[-1], flush=True)
+    table = os.path.join(GUIDE, "images.md")
+    old = {}
+    if os.path.isfile(table):  # keep the rows of samples not redone in this run
+        for line in open(table).read().splitlines():
+            if line.startswith("| ") and not line.startswith("| sample") and "`" in line:
+                old[line.split("|")[1].strip()] = line
+    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    for r in rows:
+        cmd = f"`bash scripts/make_docs_images.sh --samples {r['name']} --resolution {args.resolution}`"
+        old[r["name"]] = (f"| {r['name']} | {r['solve']:.0f} s | {r['local']:.0f} s ({r['points']} points) | "
+                          f"{r['cycles']:.0f} s | {cmd} ({stamp}) | ![{r['name']}]({r['name']}.png) |")
+    lines = ["Left: the exact local pass; right: Cycles path tracing of the scene's own materials with its time limit "
+             "set to the local pass's time (2 shared cores, other jobs running). Each row gives the command that "
+             "regenerates it.",
+             "", "| sample | build + first pass | local pass | Cycles (time limit) | command | picture |",
+             "|---|---|---|---|---|---|"]
+    lines += [old[k] for k in sorted(old)]
+    with open(table, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]))

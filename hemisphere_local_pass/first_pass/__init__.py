@@ -1,0 +1,24 @@
+"""The first pass: diffuse radiosity on the scene's polygons (pure numpy, beside the core).
+
+Progressive refinement (:mod:`.progressive`) with patch-to-patch form factors from several exact
+point-to-polygon evaluations of the core per shooting patch (:mod:`.quadrature`); memory O(n). Its
+per-polygon radiance is the FACE-domain ``radiosity`` attribute the local pass reads.
+
+    from hemisphere_local_pass.first_pass import solve_radiosity
+    result = solve_radiosity(scene, reflectivity, emission, tolerance=1e-3)
+    result.radiance          # (n, 3) W sr^-1 m^-2
+    print(result.summary())  # shots, unshot fraction, energy balance
+"""
+
+from .progressive import (
+    DEFAULT_TOLERANCE,
+    FirstPassResult,
+    ProgressiveSolver,
+    SolveProgress,
+    shooter_form_factors,
+    solve_radiosity,
+)
+from .quadrature import PatchQuadrature, patch_quadrature
+
+__all__ = ["DEFAULT_TOLERANCE", "FirstPassResult", "PatchQuadrature", "ProgressiveSolver", "SolveProgress",
+           "patch_quadrature", "shooter_form_factors", "solve_radiosity"]
