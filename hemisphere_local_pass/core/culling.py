@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .rowops import unique_rows
 from .scene import Scene, plane_uncertainty
 from .solids import Solids, build_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
@@ -144,7 +145,7 @@ def _merged_faces(scene: Scene):
     size = float(np.ptp(scene.poly_centers, axis=0).max() + scene.poly_radii.max()) or 1.0
     key = np.concatenate([np.round(scene.poly_normals * 1e9), np.round(scene.poly_offsets / size * 1e9)[:, None]],
                          axis=1)
-    _, plane_id = np.unique(key, axis=0, return_inverse=True)
+    _, plane_id = unique_rows(key)
     plane_id = plane_id.reshape(-1)
     # identical copies are projected once (Scene._find_duplicates): only representatives occlude
     reps = np.flatnonzero(scene.dup_rep == np.arange(n))
@@ -159,7 +160,7 @@ def _merged_faces(scene: Scene):
     c_first = np.repeat(c_start, cnt)
     c_next = np.where(c_idx + 1 < c_first + np.repeat(cnt, cnt), c_idx + 1, c_first)
     pts = pv[order][np.arange(pv.shape[1])[None, :] < cnt[:, None]]            # (N, 3)
-    _, vid = np.unique(np.ascontiguousarray(pts).view(np.int64).reshape(-1, 3), axis=0, return_inverse=True)
+    _, vid = unique_rows(np.ascontiguousarray(pts).view(np.int64).reshape(-1, 3))
     vid = vid.reshape(-1)
     n_v = int(vid.max()) + 1 if len(vid) else 0
     a, b = vid, vid[c_next]
@@ -522,10 +523,13 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     step = max(1, int(2e6 // max(1, n_o * k)))
     noise_b = COORD_EPS * np.abs(body_verts).max(axis=(1, 2))                           # (B,)
     noise_o = COORD_EPS * np.abs(occ_verts).max(axis=(1, 2))                            # (n_o,)
+    o0 = [np.ascontiguousarray(occ_verts[:, 0, c]) for c in range(3)]
+    on = [np.ascontiguousarray(occ_normals[:, c]) for c in range(3)]
     for s in range(0, b_n, step):
-        rel = body_verts[s:s + step, :, None, :] - occ_verts[None, None, :, 0, :]     # (b, K, n_o, 3)
-        d = (rel * occ_normals[None, None]).sum(axis=3)                               # (b, K, n_o)
-        reach = np.abs(rel).max(axis=3)                                                # (b, K, n_o)
+        # (b, K, n_o) per coordinate: the same sums in the same order as over a last axis of 3, unrolled
+        rel = [body_verts[s:s + step, :, None, c] - o0[c] for c in range(3)]
+        d = rel[0] * on[0] + rel[1] * on[1] + rel[2] * on[2]                          # (b, K, n_o)
+        reach = np.maximum(np.maximum(np.abs(rel[0]), np.abs(rel[1])), np.abs(rel[2]))
         noise = noise_b[s:s + step, None, None] + noise_o[None, None, :]
         eps = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach + noise
         eps_body = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach.max(axis=1, keepdims=True) + noise

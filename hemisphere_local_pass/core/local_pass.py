@@ -14,150 +14,43 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .clear_tiles import TileEdges, clear_form_factors, clear_irradiance, clear_pairs, tile_edges
-from .culling import Occluders, build_occluders
-from .form_factor import contour_integral
-from .projection import hemisphere_candidates
-from .rowops import take_rows
+from .chunk import (
+    DEFAULT_BUDGET,
+    Cancelled,
+    contour_by_width,
+    prepare_scene,
+    scene_occluders,
+    scene_tile_edges,
+    visible,
+    visible_fragments_with_ff,
+)
+from .clear_tiles import clear_form_factors, clear_irradiance
+from .culling import Occluders
+from .receivers import prepare_receivers
 from .scene import Scene
-from .tolerances import COORD_EPS
-from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes, visible_terms
 
-__all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_with_ff"]
-
-DEFAULT_BUDGET = 2**19
+__all__ = ["Cancelled", "form_factors", "irradiance", "prepare_scene", "radiance", "visible_fragments_with_ff"]
 #: at most this many receivers per chunk: small scenes' chunks then stay in cache (175 polygons: chunks
 #: of 150–220 points are ~10 % faster than of 744; the per-chunk overhead is already negligible there)
 MAX_CHUNK_POINTS = 192
+#: irradiance chunks are sized as for a scene of at most this many polygons (see :func:`irradiance`)
+IRRADIANCE_CHUNK_POLYGONS = 682
 
 
-class Cancelled(Exception):
-    """Raised when the ``cancel`` callback of a batch entry point returns True."""
+# the visibility stage of a chunk and the scene preparation live in .chunk (also used by the inspector's
+# project_point); these names stay here for the callers of the batch drivers
+_prepare_receivers = prepare_receivers
+_occluders = scene_occluders
+_visible = visible
+_contour_by_width = contour_by_width
+_tile_edges = scene_tile_edges
 
 
-def _prepare_receivers(points, normals, limit_directions=None, *, single=False):
-    """Validate receivers; return ``P (m, 3)``, unit ``N (m, 3)`` and tangent ``U (m, 3)`` or None."""
-    p = np.asarray(points, dtype=np.float64)
-    n = np.asarray(normals, dtype=np.float64)
-    if single:
-        p, n = p.reshape(1, -1), n.reshape(1, -1)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"points must have shape (m, 3), got {p.shape}")
-    if n.shape != p.shape:
-        raise ValueError(f"normals must have shape {p.shape}, got {n.shape}")
-    bad = np.flatnonzero(~(np.isfinite(p).all(axis=1) & np.isfinite(n).all(axis=1)))
-    if len(bad):
-        raise ValueError(f"receiver {int(bad[0])} has a non-finite point or normal ({p[bad[0]]}, {n[bad[0]]})")
-    length = np.linalg.norm(n, axis=1)
-    bad = np.flatnonzero(~(length > 0))
-    if len(bad):
-        raise ValueError(f"receiver {int(bad[0])} has a zero normal")
-    n = n / length[:, None]
-    u = None
-    if limit_directions is not None:
-        u = np.asarray(limit_directions, dtype=np.float64)
-        if single:
-            u = u.reshape(1, -1)
-        if u.shape != p.shape:
-            raise ValueError(f"limit_directions must have shape {p.shape}, got {u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError("limit_directions must be finite")
-        u = u - np.einsum("mc,mc->m", u, n)[:, None] * n       # keep it in the tangent plane
-        ul = np.linalg.norm(u, axis=1)
-        u = np.where((ul > 1e-12)[:, None], u / np.where(ul > 0, ul, 1.0)[:, None], 0.0)
-        if not u.any():
-            u = None
-    return p, n, u
-
-
-def _occluders(scene: Scene, occluders: Occluders | None) -> Occluders:
-    if occluders is not None:
-        return occluders
-    occ = getattr(scene, "_occluders", None)
-    if occ is None:
-        occ = build_occluders(scene)
-        scene._occluders = occ
-    return occ
-
-
-def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occluders=None, include=None):
-    """Visible fragments of every polygon for receivers ``points, normals (m, 3)`` and their form factors.
-
-    Returns ``(fragments, ff)`` with ``ff (F,)`` the form factor of each fragment (eq. 4, >= 0).
-    """
-    frags, ff, _ = _visible(scene, points, normals, limit, _occluders(scene, occluders), include, use_clear=False)
-    return frags, ff
-
-
-def _tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
-    cached = getattr(scene, "_tile_edges", None)
-    if cached is None or cached[0] is not occ:
-        cached = (occ, tile_edges(scene, occ))
-        scene._tile_edges = cached
-    return cached[1]
-
-
-def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool):
-    """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
-    fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
-    ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
-    :func:`.visibility.visible_terms`): ``ff`` is then negative for the terms to subtract, and the
-    fragments carry no vertices (``verts`` None), only their ids."""
-    reps = scene.dup_rep == np.arange(scene.n_polygons)
-    if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
-        include = reps[None, :] if include is None else include & reps[None, :]
-    sv, table = shadow_volumes(occ, points, normals, limit)
-    cov = coverage(sv, table, occ, points)
-    skip = cov.hidden_tiles
-    clear = None
-    if use_clear and len(occ.tile_occluder):
-        te = _tile_edges(scene, occ)
-        pairs = clear_pairs(te, occ, cov, sv, table, points, normals, limit)
-        skip = skip | pairs.mask
-        clear = (pairs, te)
-    cand = hemisphere_candidates(scene, points, normals, limit, include, occ, skip)
-    ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
-    allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
-    flat = None if cand.flat is None else (cand.flat, scene.poly_normals)
-    if use_clear:
-        # signed terms, integrated set by set; the sums need only their ids (verts None)
-        terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
-        ff = np.concatenate([sign * np.maximum(t.side * _contour_by_width(t, normals, points), 0.0)
-                             for t, sign in terms] or [np.zeros(0)])
-        frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
-                                        for a in ("counts", "point", "poly", "side", "owner")))
-    else:
-        frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
-        # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
-        ff = np.maximum(frags.side * _contour_by_width(frags, normals, points), 0.0)
-    if not reps.all():
-        # credit each fragment to the copy that faces the receiver (then the lowest index)
-        rep = frags.poly
-        opp = scene.dup_opp[rep]
-        use_opp = (frags.side > 0) & (opp >= 0)
-        frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
-        frags.side = np.where(use_opp, -frags.side, frags.side)
-    return frags, ff, clear
-
-
-def _contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
-    """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots."""
-    width = frags.verts.shape[1]
-    small = frags.counts <= 4
-    noise = None if frags.inf is None else COORD_EPS * np.abs(points).max(axis=1)[frags.point]
-    if width <= 4 or small.all() or not small.any():
-        return contour_integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise)
-    out = np.empty(len(frags.counts))
-    for sel, w in ((np.flatnonzero(small), 4), (np.flatnonzero(~small), width)):
-        out[sel] = contour_integral(take_rows(frags.verts[:, :w], sel), take_rows(normals, frags.point[sel]),
-                                    None if frags.inf is None else take_rows(frags.inf[:, :w], sel),
-                                    None if noise is None else noise[sel])
-    return out
-
-
-def _chunks(scene: Scene, m: int, budget: int):
+def _chunks(scene: Scene, m: int, budget: int, polygons: int | None = None):
+    """Chunks ``(start, end)`` of ``m`` receivers: ``budget // ((polygons + 1) × K)`` points each (at most
+    :data:`MAX_CHUNK_POINTS`); ``polygons`` defaults to the scene's (form factors: the output rows)."""
     k = scene.poly_vertices.shape[1] if scene.n_polygons else 3
-    per_point = max(1, (scene.n_polygons + 1) * k)
+    per_point = max(1, ((scene.n_polygons if polygons is None else polygons) + 1) * k)
     size = max(1, min(m, budget // per_point, MAX_CHUNK_POINTS))
     return [(s, min(m, s + size)) for s in range(0, m, size)]
 
@@ -181,11 +74,11 @@ def _settle_allocator():
         _ALLOCATOR_READY = True
 
 
-def _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk):
+def _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk, polygons=None):
     _settle_allocator()
     p, n, u = _prepare_receivers(points, normals, limit_directions)
     m = len(p)
-    chunks = _chunks(scene, m, budget)
+    chunks = _chunks(scene, m, budget, polygons)
     for s, e in chunks:
         if cancel is not None and cancel():
             raise Cancelled(f"cancelled after {s} of {m} points")
@@ -236,7 +129,9 @@ def form_factors(
         # a hidden polygon's terms (F(A) - F(A ∩ V)) to -1e-17
         np.clip(out[s:e], 0.0, 1.0, out=out[s:e])
 
-    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
+    # a chunk's output rows hold (points × n_input); its candidates are bounded by the visibility stage
+    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk,
+         polygons=max(scene.n_polygons // 8, IRRADIANCE_CHUNK_POLYGONS))
     return out
 
 
@@ -284,7 +179,7 @@ def irradiance(
 
     def per_chunk(s, e, p, n, u):
         include = np.broadcast_to(emits[None, :], (e - s, scene.n_polygons))
-        frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear)
+        frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear, budget=budget)
         lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
         if scene.linear:
             from .linear_radiance import linear_irradiance
@@ -307,7 +202,10 @@ def irradiance(
             np.maximum(out[s:e], 0.0, out=out[s:e])
 
     nonnegative = bool((scene.corner_radiance >= 0).all() if scene.linear else (scene.poly_radiance >= 0).all())
-    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk)
+    # the chunk's candidates are bounded by the visibility stage itself (it splits a chunk whose surviving
+    # tiles hold too many), and the output is (m, 3): chunks need not shrink with the scene's size
+    _run(scene, points, normals, limit_directions, progress, cancel, budget, per_chunk,
+         polygons=min(scene.n_polygons, IRRADIANCE_CHUNK_POLYGONS))
     return out
 
 
