@@ -525,23 +525,34 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     noise_o = COORD_EPS * np.abs(occ_verts).max(axis=(1, 2))                            # (n_o,)
     o0 = [np.ascontiguousarray(occ_verts[:, 0, c]) for c in range(3)]
     on = [np.ascontiguousarray(occ_normals[:, c]) for c in range(3)]
+    coef = 4 * PLANE_EPS + occ_tilt[None, :]
     for s in range(0, b_n, step):
-        # (b, K, n_o) per coordinate: the same sums in the same order as over a last axis of 3, unrolled
-        rel = [body_verts[s:s + step, :, None, c] - o0[c] for c in range(3)]
-        d = rel[0] * on[0] + rel[1] * on[1] + rel[2] * on[2]                          # (b, K, n_o)
-        reach = np.maximum(np.maximum(np.abs(rel[0]), np.abs(rel[1])), np.abs(rel[2]))
-        noise = noise_b[s:s + step, None, None] + noise_o[None, None, :]
-        eps = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach + noise
-        eps_body = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach.max(axis=1, keepdims=True) + noise
-        d = np.where(valid[s:s + step, :, None], d, 0.0)
-        # a vertex off the plane by more than rounding but within the decision tolerance may be on either
-        # side: as a filter, it counts for both. Rounding here is that of d itself (a few ulp of |rel|):
-        # the relative tolerance 4 PLANE_EPS |rel| is far wider for a vertex far from the plane's
-        # reference vertex (a 1e6 quad seen against a 1e-6 triangle's plane: 3e-6 > the quad's true 1e-6
-        # reach to the triangle's near side, which decides whether the quad can hide part of it)
-        unsure = ((np.abs(d) > _ROUNDING * reach + noise) & (np.abs(d) <= eps)).any(axis=1)
-        pos[s:s + step] = (d > eps).any(axis=1) | unsure
-        neg[s:s + step] = (d < -eps).any(axis=1) | unsure
-        pos_body[s:s + step] = (d > eps_body).any(axis=1)
-        neg_body[s:s + step] = (d < -eps_body).any(axis=1)
+        bv = body_verts[s:s + step]
+        noise = noise_b[s:s + step, None] + noise_o[None, :]                         # (b, n_o)
+        # slot by slot, (b, n_o) per coordinate: the same sums in the same order as over a last axis of 3
+        ds, rs = [], []
+        for j in range(k):
+            rel = [bv[:, j, c][:, None] - o0[c] for c in range(3)]
+            d = rel[0] * on[0] + rel[1] * on[1] + rel[2] * on[2]
+            rs.append(np.maximum(np.maximum(np.abs(rel[0]), np.abs(rel[1])), np.abs(rel[2])))
+            ds.append(np.where(valid[s:s + step, j, None], d, 0.0))
+        eps_body = coef * np.maximum.reduce(rs) + noise
+        p, ng, pb, nb, unsure = (np.zeros(ds[0].shape, dtype=bool) for _ in range(5))
+        for d, reach in zip(ds, rs):
+            eps = coef * reach + noise
+            ad = np.abs(d)
+            # a vertex off the plane by more than rounding but within the decision tolerance may be on
+            # either side: as a filter, it counts for both. Rounding here is that of d itself (a few ulp
+            # of |rel|): the relative tolerance 4 PLANE_EPS |rel| is far wider for a vertex far from the
+            # plane's reference vertex (a 1e6 quad seen against a 1e-6 triangle's plane: 3e-6 > the
+            # quad's true 1e-6 reach to the triangle's near side, which decides whether it can hide it)
+            unsure |= (ad > _ROUNDING * reach + noise) & (ad <= eps)
+            p |= d > eps
+            ng |= d < -eps
+            pb |= d > eps_body
+            nb |= d < -eps_body
+        pos[s:s + step] = p | unsure
+        neg[s:s + step] = ng | unsure
+        pos_body[s:s + step] = pb
+        neg_body[s:s + step] = nb
     return pos, neg, pos_body, neg_body

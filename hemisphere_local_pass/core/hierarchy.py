@@ -69,6 +69,7 @@ class TileHierarchy:
             level 1.5; a face's only tile would repeat level 1).
         mid, half: (N, 3) centre and half extent of every box (for exact min / max of a plane over it).
         min_radius: (N,) smallest bounding radius of a member polygon below the node.
+        face: (N,) the merged face (occluder) every node belongs to.
     """
 
     corners: np.ndarray
@@ -82,6 +83,7 @@ class TileHierarchy:
     root: np.ndarray
     tiled: np.ndarray
     min_radius: np.ndarray | None = None
+    face: np.ndarray | None = None
     mid: np.ndarray | None = None
     half: np.ndarray | None = None
 
@@ -124,6 +126,7 @@ def build_hierarchy(occ, poly_radii: np.ndarray) -> TileHierarchy:
     first[0][perm] = np.arange(n_t)
     last = [first[0] + 1]
     rmin = [np.minimum.reduceat(poly_radii[occ.tile_members], occ.tile_ptr[:-1]) if n_t else np.zeros(0)]
+    node_face = [face]
     children: list[np.ndarray] = []
     parents_of: list[np.ndarray] = []
     items, item_face = perm, face[perm]                   # the current level, in tree order
@@ -166,6 +169,7 @@ def build_hierarchy(occ, poly_radii: np.ndarray) -> TileHierarchy:
         children.append(items)
         parents_of.append(par)
         items, item_face = n_nodes + np.arange(n_new), item_face[g_start]
+        node_face.append(item_face)
         n_nodes += n_new
     n_children = np.zeros(n_nodes + 1, dtype=np.int64)
     child = np.concatenate(children) if children else np.zeros(0, dtype=np.int64)
@@ -175,7 +179,7 @@ def build_hierarchy(occ, poly_radii: np.ndarray) -> TileHierarchy:
     tiled = (np.bincount(occ.members, minlength=n_o) > 1) & (np.bincount(face, minlength=n_o) > 1)
     return TileHierarchy(np.concatenate(corners), np.concatenate(centers), np.concatenate(radii),
                          np.cumsum(n_children), child[order], np.concatenate(first), np.concatenate(last), perm,
-                         root, tiled, np.concatenate(rmin))
+                         root, tiled, np.concatenate(rmin), np.concatenate(node_face))
 
 
 @dataclass
@@ -226,7 +230,7 @@ def _node_tests(h: TileHierarchy, node, point, q, sv, points):
 
 def _enclosures(sol, points, normals):
     """Faces of closed convex solids that enclose each receiver: ``(ptr (m+1,), out (U, 3), point (U, 3),
-    tilt (U,), noise (U,), centre (U, 3), radius (U,))`` CSR over receivers, for :func:`_enclosed`.
+    tilt (U,), noise (U,), solid (U,))`` CSR over receivers, for :func:`_enclosed`.
 
     A receiver P inside a closed convex solid S (every face plane has P strictly on its inner side, or
     contains P — then P lies on that face, and the receiver's normal is the face's inward normal, so
@@ -237,7 +241,7 @@ def _enclosures(sol, points, normals):
     """
     m = len(points)
     empty = (np.zeros(m + 1, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
-             np.zeros((0, 3)), np.zeros(0))
+             np.zeros(0, dtype=np.int64))
     if sol is None or sol.n == 0 or m == 0 or sol.hole.all():
         return empty
     fs = sol.face_solid
@@ -260,14 +264,18 @@ def _enclosures(sol, points, normals):
     ptr = np.zeros(m + 1, dtype=np.int64)
     np.add.at(ptr, up + 1, 1)
     return (np.cumsum(ptr), sol.face_out[uf], sol.face_point[uf], sol.face_tilt[uf], sol.face_noise[uf],
-            sol.centers[fs[uf]], sol.radii[fs[uf]])
+            fs[uf])
 
 
-def _enclosed(h: TileHierarchy, enc, node, point, points):
+def _enclosed(h: TileHierarchy, enc, face_solid, node, point, points):
     """(E,) bool: the box of ``node`` lies strictly beyond (by 8× the plane tolerance) a face of a solid
-    enclosing receiver ``point`` (see :func:`_enclosures`): everything of it above the horizon is hidden."""
+    enclosing receiver ``point`` (see :func:`_enclosures`): everything of it above the horizon is hidden.
+    ``face_solid (n_o,)``: the solid each merged face belongs to (-1: none); a solid's own faces are
+    never beyond its planes and are not tested."""
     ptr = enc[0]
     b, u = expand(point, ptr, np.arange(ptr[-1]))
+    other = face_solid[h.face[node[b]]] != enc[5][u]
+    b, u = b[other], u[other]
     if not len(b):
         return np.zeros(len(node), dtype=bool)
     out, fpt, tilt, noise = enc[1][u], enc[2][u], enc[3][u], enc[4][u]
@@ -319,6 +327,9 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
     e_idx = np.flatnonzero(cut)
     lb = e_idx[lb]                                  # (entry, volume) list, volumes in cluster-list order
     enc = _enclosures(occ.solids, points, normals)
+    face_solid = np.full(n_o, -1, dtype=np.int64)
+    if occ.solids is not None and occ.solids.n:
+        face_solid[occ.solids.face_occ] = occ.solids.face_solid
     leaves_p, leaves_t, leaves_cut, leaves_k, leaf_lb, leaf_lq = [], [], [], [], [], []
     visited = 0
     while len(ep):
@@ -344,7 +355,7 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
             alive &= wanted[en]
         if enc[0][-1]:
             live = np.flatnonzero(alive)
-            alive[live[_enclosed(h, enc, en[live], ep[live], points)]] = False
+            alive[live[_enclosed(h, enc, face_solid, en[live], ep[live], points)]] = False
         leaf = en < n_t
         inner = alive & ~leaf
         # covered / outside for the (inner node, volume) entries
