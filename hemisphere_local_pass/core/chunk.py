@@ -138,6 +138,28 @@ def _row(include):
     return None
 
 
+def _representatives(scene: Scene):
+    """``(n,)`` bool: the polygons that represent their group of identical copies, or None when every
+    polygon does (cached on the scene: an O(n) pass per chunk is what hidden geometry must not cost)."""
+    cached = getattr(scene, "_reps", False)
+    if cached is False:
+        reps = scene.dup_rep == np.arange(scene.n_polygons)
+        cached = None if reps.all() else reps
+        scene._reps = cached
+    return cached
+
+
+def _wanted_tiles(scene: Scene, occ: Occluders, row: np.ndarray) -> np.ndarray:
+    """``(T,)`` bool: tiles with a member in ``row (n,)`` (the polygons to project), cached for the row."""
+    cached = getattr(scene, "_wanted", None)
+    if cached is not None and cached[0] is occ and (cached[1] is row or np.array_equal(cached[1], row)):
+        return cached[2]
+    wanted = np.logical_or.reduceat(row[occ.tile_members], occ.tile_ptr[:-1]) if len(occ.tile_members) \
+        else np.zeros(0, dtype=bool)
+    scene._wanted = (occ, row.copy(), wanted)
+    return wanted
+
+
 def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool,
             budget: int = DEFAULT_BUDGET):
     """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
@@ -147,9 +169,9 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     fragments carry no vertices (``verts`` None), only their ids.
 
     ``include``: None, or bool (m, n) / (1, n) pairs to project (others only occlude)."""
-    reps = scene.dup_rep == np.arange(scene.n_polygons)
+    reps = _representatives(scene)
     row = _row(include)
-    if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
+    if reps is not None:  # identical copies are projected once (see Scene._find_duplicates)
         if include is None or row is not None:
             row = reps if row is None else row & reps
             include = row[None, :]
@@ -157,10 +179,7 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
             include = include & reps[None, :]
     sv, table = shadow_volumes(occ, points, normals, limit)
     cov = coverage(sv, table, occ, points)
-    wanted = None
-    if row is not None:
-        wanted = np.logical_or.reduceat(row[occ.tile_members], occ.tile_ptr[:-1]) if len(occ.tile_members) \
-            else np.zeros(0, dtype=bool)
+    wanted = None if row is None else _wanted_tiles(scene, occ, row)
     tiles = visit_tiles(scene_hierarchy(scene, occ), occ, sv, table, cov, points, normals, wanted)
     cov.tiles = tiles
     clear = None
@@ -191,7 +210,7 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
         frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
         ff = np.maximum(frags.side * contour_by_width(frags, normals, points), 0.0)
-    if not reps.all():
+    if reps is not None:
         # credit each fragment to the copy that faces the receiver (then the lowest index)
         rep = frags.poly
         opp = scene.dup_opp[rep]
