@@ -124,10 +124,6 @@ def _components(n: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return parent
 
 
-def _segment_sum(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    return np.add.reduceat(values, starts, axis=0) if len(values) else np.zeros((0,) + values.shape[1:])
-
-
 def _merged_faces(scene: Scene):
     """Merge coplanar, edge-connected convex polygons that tile one convex polygon (see the module doc).
 
