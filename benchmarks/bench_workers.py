@@ -87,7 +87,7 @@ def main(argv=None):
         load = time.perf_counter() - t
         bare = copy.copy(scene)
         for attr in [a for a in vars(bare) if a.startswith("_") and a not in ("_n",)]:
-            if attr in ("_occluders", "_tile_edges", "_irradiance_inputs"):
+            if attr in ("_occluders", "_tile_edges", "_hierarchy", "_radiance_tables", "_reps", "_wanted"):
                 delattr(bare, attr)
         t = time.perf_counter()
         occ2 = build_occluders(bare)

@@ -9,9 +9,9 @@ Pure numpy: importing this package needs nothing but numpy (no bpy, no mathutils
 
 from .adaptive import AdaptiveStats, adaptive_irradiance
 from .gradient import irradiance_gradient, irradiance_normal_gradient
-from .local_pass import Cancelled, form_factors, irradiance, radiance
-from .projection import Projection, project_point
+from .inspection import Projection, project_point
+from .local_pass import Cancelled, form_factors, irradiance, prepare_scene, radiance
 from .scene import Scene
 
 __all__ = ["AdaptiveStats", "Cancelled", "Projection", "Scene", "adaptive_irradiance", "form_factors", "irradiance",
-           "irradiance_gradient", "irradiance_normal_gradient", "project_point", "radiance"]
+           "irradiance_gradient", "irradiance_normal_gradient", "prepare_scene", "project_point", "radiance"]

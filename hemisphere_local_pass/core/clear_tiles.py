@@ -10,8 +10,9 @@ to the other). For irradiance the members' radiances fold into one weight per ed
 
 A (receiver, tile) pair takes this path only when the answer is certain to be the one the general path
 would give: the tile's merged face has a shadow-volume instance that no volume cuts (levels 1 and 1.5
-of :func:`.visibility.coverage`), no corner of the tile's bounding box lies below the horizon by more
-than the general path's tolerance (so no member needs clipping), P is clearly off the tile's plane,
+of :func:`.visibility.coverage` and :func:`.hierarchy.visit_tiles`), no corner of the tile's bounding
+box lies below the horizon by more than the general path's tolerance (so no member needs clipping), P
+is clearly off the tile's plane,
 the receiver is not in a one-sided limit, and the tile's members have no duplicates or coplanar
 overlaps. Everything else goes the general way, so exactness never depends on this path's margins.
 """
@@ -24,6 +25,7 @@ import numpy as np
 
 from .csr import expand
 from .form_factor import CANCELLATION, contour_integral
+from .rowops import unique_rows
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["ClearPairs", "TileEdges", "clear_pairs", "clear_form_factors", "clear_irradiance", "tile_edges"]
@@ -91,7 +93,7 @@ def tile_edges(scene, occ) -> TileEdges:
     cnt = scene.poly_counts[mem]
     pts = scene.poly_vertices[mem][np.arange(scene.poly_vertices.shape[1])[None, :] < cnt[:, None]]
     corner_tile = np.repeat(mem_tile, cnt)
-    uniq, inv = np.unique(np.column_stack([corner_tile, pts]), axis=0, return_inverse=True)
+    uniq, inv = unique_rows(np.column_stack([corner_tile, pts]))
     inv = inv.reshape(-1)
     n_v = len(uniq)
     # each corner's next corner round its member
@@ -127,30 +129,32 @@ def tile_edges(scene, occ) -> TileEdges:
 @dataclass
 class ClearPairs:
     """(receiver, tile) pairs taking the fast path: point (P,), tile (P,), side (P,) float ±1 (+1: P
-    behind the tile's plane, as :attr:`.projection.Candidates.side`); ``mask (m, T)`` the same pairs."""
+    behind the tile's plane, as :attr:`.projection.Candidates.side`); ``pair (P,)`` their index in the
+    :class:`.hierarchy.TilePairs` they were chosen from."""
 
     point: np.ndarray
     tile: np.ndarray
     side: np.ndarray
-    mask: np.ndarray
+    pair: np.ndarray
 
 
 def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> ClearPairs:
-    """Pairs whose tile is whole, visible and uncut for certain (see the module docstring)."""
-    m, n_t = len(points), len(occ.tile_occluder)
-    k = table[:, occ.tile_occluder]                                              # (m, T) cluster instance
+    """Pairs of ``cov.tiles`` (the tiles that survive the hierarchy) whose tile is whole, visible and
+    uncut for certain (see the module docstring)."""
+    tiles = cov.tiles
+    tp, tt = tiles.point, tiles.tile
+    k = table[tp, occ.tile_occluder[tt]]                                         # (P,) cluster instance
     ks = np.maximum(k, 0)
-    ok = (k >= 0) & te.eligible[None]
+    ok = (k >= 0) & te.eligible[tt]
     if len(cov.cluster_covered):
         ok &= ~cov.cluster_covered[ks]
         uncut_cluster = cov.k_ptr[ks + 1] == cov.k_ptr[ks]
-        ti = cov.t_tab                                                           # (m, T) tile instance
-        n_cut = np.append(np.diff(cov.t_ptr), 1)[ti]                             # ti = -1: "cut" (unknown)
-        uncut_tile = (n_cut == 0) & ~np.append(cov.t_cov, True)[ti]
+        uncut_tile = tiles.tested & (np.diff(tiles.ptr) == 0)                    # untested: "cut" (unknown)
         ok &= uncut_cluster | uncut_tile
     if limit is not None:
-        ok &= ~limit.any(axis=1)[:, None]
-    tp, tt = np.nonzero(ok)
+        ok &= ~limit.any(axis=1)[tp]
+    sel = np.flatnonzero(ok)
+    tp, tt = tp[sel], tt[sel]
     corners = occ.tile_corners[tt] - points[tp][:, None, :]                      # (P, 8, 3)
     height = np.matmul(corners, normals[tp][:, :, None])[..., 0]                 # (P, 8)
     rel = occ.tile_centers[tt] - points[tp]
@@ -164,10 +168,7 @@ def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> C
     plane_tol = ((PLANE_EPS + te.plane_tilt[tt]) * scale + te.plane_noise[tt]
                  + COORD_EPS * np.abs(points[tp]).max(axis=1))
     sure = (height.min(axis=1) >= -0.5 * PLANE_EPS * near) & (np.abs(d) > SIDE_MARGIN * scale + 4.0 * plane_tol)
-    tp, tt, d = tp[sure], tt[sure], d[sure]
-    mask = np.zeros((m, n_t), dtype=bool)
-    mask[tp, tt] = True
-    return ClearPairs(tp, tt, np.sign(d), mask)
+    return ClearPairs(tp[sure], tt[sure], np.sign(d[sure]), sel[sure])
 
 
 def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
@@ -203,14 +204,14 @@ def _batches(te: TileEdges, pairs: ClearPairs):
     cuts = np.searchsorted(ends, np.arange(EDGE_BATCH, ends[-1] if len(ends) else 0, EDGE_BATCH), side="right")
     bounds = np.unique(np.concatenate([[0], cuts, [len(pairs.point)]]))
     for s, e in zip(bounds[:-1], bounds[1:]):
-        yield ClearPairs(pairs.point[s:e], pairs.tile[s:e], pairs.side[s:e], pairs.mask)
+        yield ClearPairs(pairs.point[s:e], pairs.tile[s:e], pairs.side[s:e], pairs.pair[s:e])
 
 
 def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_sided: bool) -> np.ndarray:
     """``Σ_i L_i F_i`` over the members of the clear tiles, ``(m, 3)`` (front-lit only unless double-sided)."""
     out = np.zeros((len(points), 3))
     lit = np.ones(len(pairs.point), dtype=bool) if double_sided else pairs.side < 0
-    pairs = ClearPairs(pairs.point[lit], pairs.tile[lit], pairs.side[lit], pairs.mask)   # the rest emit nothing
+    pairs = ClearPairs(pairs.point[lit], pairs.tile[lit], pairs.side[lit], pairs.pair[lit])   # the rest emit nothing
     for sub in _batches(te, pairs):
         b, e, t = _edge_terms(te, sub, points, normals)
         n_edges = np.diff(te.edge_ptr)[sub.tile]

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .rowops import unique_rows
 from .scene import Scene, plane_uncertainty
 from .solids import Solids, build_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
@@ -102,127 +103,271 @@ class Occluders:
         return len(self.vol_radii)
 
 
-def _merge_group(scene: Scene, group: np.ndarray):
-    """Boundary loop (k, 3) of a coplanar, edge-connected group if it is one convex polygon, else None."""
-    verts, counts = scene.poly_vertices, scene.poly_counts
-    edges: dict[tuple[bytes, bytes], int] = {}
-    coords: dict[bytes, np.ndarray] = {}
-    area = 0.0
-    for i in group:
-        k = counts[i]
-        pv = verts[i, :k]
-        keys = [v.tobytes() for v in pv]
-        for j in range(k):
-            coords[keys[j]] = pv[j]
-            e = (keys[j], keys[(j + 1) % k])
-            edges[e] = edges.get(e, 0) + 1
-        rel = pv - pv[0]
-        area += 0.5 * np.linalg.norm(np.cross(rel, np.roll(rel, -1, axis=0)).sum(axis=0))
-    boundary = {}
-    for (a, b), c in edges.items():
-        if c != 1 or edges.get((b, a), 0) > 1:
-            return None  # duplicated edges: overlapping polygons
-        if (b, a) not in edges:
-            if a in boundary:
-                return None  # a vertex with two outgoing boundary edges: not a simple loop
-            boundary[a] = b
-    if not boundary:
-        return None
-    start = next(iter(boundary))
-    loop = [start]
-    while True:
-        nxt = boundary[loop[-1]]
-        if nxt == start:
+def _components(n: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Connected components of the graph on ``n`` nodes with edges ``u, v (E,)``: ``(n,)`` the lowest
+    node of each node's component (vectorised union–find: hook roots to the lower root, then pointer
+    jumping; O(E log n))."""
+    parent = np.arange(n)
+    while len(u):
+        pu, pv = parent[u], parent[v]
+        lo, hi = np.minimum(pu, pv), np.maximum(pu, pv)
+        link = lo != hi
+        if not link.any():
             break
-        if len(loop) > len(boundary):
-            return None
-        loop.append(nxt)
-    if len(loop) != len(boundary):
-        return None  # several loops (holes or disjoint parts)
-    pts = np.array([coords[key] for key in loop])
-    normal = scene.poly_normals[group[0]]
-    # only polygons coplanar to rounding merge: the triangles of a face that was triangulated because it
-    # is not planar (Scene, PLANARITY_EPS) must keep their own planes, or the merged cone is off by that
-    every = np.array(list(coords.values()))
-    hts = (every - every[0]) @ normal
-    if 0.5 * (hts.max() - hts.min()) > PLANARITY_EPS * float(np.ptp(every, axis=0).max()):
-        return None
-    # drop collinear boundary vertices (the subdivision's T-free grid points along the border)
-    keep = []
-    n_pts = len(pts)
-    size = float(np.ptp(pts, axis=0).max())
-    for j in range(n_pts):
-        e1 = pts[j] - pts[j - 1]
-        e2 = pts[(j + 1) % n_pts] - pts[j]
-        turn = float(np.dot(np.cross(e1, e2), normal))
-        if turn < -CONVEXITY_EPS * np.linalg.norm(e1) * np.linalg.norm(e2):
-            return None  # reflex corner: not convex
-        if turn > 1e-9 * np.linalg.norm(e1) * np.linalg.norm(e2):
-            keep.append(j)
-    if len(keep) < 3:
-        return None
-    pts = pts[keep]
-    rel = pts - pts[0]
-    loop_area = 0.5 * float(np.dot(np.cross(rel, np.roll(rel, -1, axis=0)).sum(axis=0), normal))
-    if abs(loop_area - area) > 1e-9 * max(area, size * size * 1e-12):
-        return None  # winding or overlap inconsistency
-    return pts
+        u, v, lo, hi = u[link], v[link], lo[link], hi[link]
+        np.minimum.at(parent, hi, lo)           # roots only (every node points at its root here)
+        while True:
+            up = parent[parent]
+            if np.array_equal(up, parent):
+                break
+            parent = up
+    return parent
 
 
-def build_occluders(scene: Scene, *, solids: bool = True) -> Occluders:
+def _merged_faces(scene: Scene):
+    """Merge coplanar, edge-connected convex polygons that tile one convex polygon (see the module doc).
+
+    Vectorised over the whole scene (O(N log N) in the number of corners N): exact-coordinate vertex
+    ids, plane groups, components through shared edges, then per component the boundary loop (directed
+    edges without their reverse), which must be one simple loop, convex once collinear points are
+    dropped, planar to rounding and of the members' total area.
+
+    Returns ``members (n,)`` (occluder of every representative polygon, -1 for duplicates), and the
+    occluders' vertex lists as ``occ_counts (n_o,)``, ``occ_points (Σ counts, 3)`` in occluder order
+    (plane group, then first member; members of groups that do not merge are occluders on their own).
+    """
+    n = scene.n_polygons
+    pv, pc = scene.poly_vertices, scene.poly_counts
+    size = float(np.ptp(scene.poly_centers, axis=0).max() + scene.poly_radii.max()) or 1.0
+    key = np.concatenate([np.round(scene.poly_normals * 1e9), np.round(scene.poly_offsets / size * 1e9)[:, None]],
+                         axis=1)
+    _, plane_id = unique_rows(key)
+    plane_id = plane_id.reshape(-1)
+    # identical copies are projected once (Scene._find_duplicates): only representatives occlude
+    reps = np.flatnonzero(scene.dup_rep == np.arange(n))
+    order = reps[np.argsort(plane_id[reps], kind="stable")]
+    pos = np.full(n, -1)
+    pos[order] = np.arange(len(order))
+    # corners of the representatives in group order, and their exact-coordinate vertex ids
+    cnt = pc[order]
+    c_poly = np.repeat(order, cnt)
+    c_start = np.cumsum(cnt) - cnt
+    c_idx = np.arange(int(cnt.sum()))
+    c_first = np.repeat(c_start, cnt)
+    c_next = np.where(c_idx + 1 < c_first + np.repeat(cnt, cnt), c_idx + 1, c_first)
+    pts = pv[order][np.arange(pv.shape[1])[None, :] < cnt[:, None]]            # (N, 3)
+    _, vid = unique_rows(np.ascontiguousarray(pts).view(np.int64).reshape(-1, 3))
+    vid = vid.reshape(-1)
+    n_v = int(vid.max()) + 1 if len(vid) else 0
+    a, b = vid, vid[c_next]
+    grp = plane_id[c_poly]
+    # components: polygons of one plane group sharing an edge (a, b) / (b, a)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    srt = np.lexsort((hi, lo, grp))
+    s_g, s_lo, s_hi, s_fwd = grp[srt], lo[srt], hi[srt], (a < b)[srt]
+    new_run = np.ones(len(srt), dtype=bool)
+    new_run[1:] = (s_g[1:] != s_g[:-1]) | (s_lo[1:] != s_lo[:-1]) | (s_hi[1:] != s_hi[:-1])
+    run = np.cumsum(new_run) - 1
+    n_run = int(run[-1]) + 1 if len(run) else 0
+    fwd_n = np.bincount(run, weights=s_fwd, minlength=n_run)
+    all_n = np.bincount(run, minlength=n_run)
+    both = (fwd_n > 0) & (fwd_n < all_n)
+    run_first = np.flatnonzero(new_run)
+    link = both[run] & ~new_run
+    root = _components(n, c_poly[srt][run_first[run[link]]], c_poly[srt][link])
+    comp_first = np.full(n, np.iinfo(np.int64).max)
+    np.minimum.at(comp_first, root[order], pos[order])
+    comp_size = np.bincount(root[order], minlength=n)
+    # ---- the merge test, for every component of two or more polygons at once
+    c_root = root[c_poly]
+    multi = comp_size[c_root] > 1
+    ok = np.zeros(n, dtype=bool)                 # by root: the component merges
+    ok[np.unique(c_root[multi])] = True
+    # a directed edge twice in one component: overlapping polygons
+    srt2 = np.lexsort((b, a, c_root))
+    d_a, d_b, d_r = a[srt2], b[srt2], c_root[srt2]
+    twin = (d_a[1:] == d_a[:-1]) & (d_b[1:] == d_b[:-1]) & (d_r[1:] == d_r[:-1])
+    ok[d_r[1:][twin]] = False
+    # boundary edges: their run has one direction only
+    boundary = np.zeros(len(a), dtype=bool)
+    boundary[srt] = ~both[run]
+    e = np.flatnonzero(boundary & multi & ok[c_root])
+    # (two components of one plane group never share an edge run: runs that link are inside one)
+    rank_root = np.unique(c_root[e], return_inverse=True)[1].reshape(-1) if len(e) else np.zeros(0, dtype=np.int64)
+    e_key = rank_root * n_v + a[e]
+    srt_e = np.argsort(e_key, kind="stable")
+    sk = e_key[srt_e]
+    twice = np.zeros(len(e), dtype=bool)
+    if len(e):
+        twice[srt_e[1:][sk[1:] == sk[:-1]]] = True          # a vertex with two outgoing boundary edges
+    ok[c_root[e[twice]]] = False
+    want = rank_root * n_v + b[e]
+    at = np.minimum(np.searchsorted(sk, want), max(len(sk) - 1, 0))
+    found = sk[at] == want if len(e) else np.zeros(0, dtype=bool)
+    ok[c_root[e[~found]]] = False
+    succ = np.where(found, srt_e[at], np.arange(len(e)))          # boundary edge index -> next one
+    e_root = c_root[e]
+    keep_e = ok[e_root]
+    # the loop starts at the first boundary edge in corner order (as the dict walk did); rank along it
+    # by pointer jumping from the edge before the start
+    n_e = len(e)
+    start = np.full(n, -1)
+    if n_e:
+        first = np.full(n, n_e)
+        np.minimum.at(first, e_root, np.arange(n_e))                   # e is in corner order
+        start = first
+    is_start = np.zeros(n_e, dtype=bool)
+    if n_e:
+        is_start[start[e_root[keep_e]]] = True
+    nxt = np.where(is_start[succ], np.arange(n_e), succ)               # the edge before the start ends
+    dist = (nxt != np.arange(n_e)).astype(np.int64)
+    loop_len = np.bincount(e_root, minlength=n)
+    for _ in range(int(np.ceil(np.log2(max(2, loop_len.max(initial=2))))) + 1):
+        dist = dist + dist[nxt]
+        nxt = nxt[nxt]
+    if n_e:
+        single = dist[start[e_root]] == loop_len[e_root] - 1
+        ok[e_root[keep_e & ~single]] = False
+    e_ok = np.flatnonzero(ok[e_root]) if n_e else np.zeros(0, dtype=np.int64)
+    lp_root = e_root[e_ok]
+    lp_pos = loop_len[lp_root] - 1 - dist[e_ok]
+    srt_l = np.lexsort((lp_pos, comp_first[lp_root]))
+    lp_root, lp_corner = lp_root[srt_l], e[e_ok][srt_l]
+    lp_pts = pts[lp_corner]                                            # (L, 3) loops, component by component
+    new_l = np.ones(len(lp_root), dtype=bool)
+    new_l[1:] = lp_root[1:] != lp_root[:-1]
+    l_start = np.flatnonzero(new_l)
+    l_len = np.diff(np.append(l_start, len(lp_root)))
+    l_roots = lp_root[l_start]
+    # normal of the component's first member (in group order)
+    first_member = np.full(n, -1)
+    first_member[root[order][::-1]] = order[::-1]
+    nrm = scene.poly_normals[first_member[lp_root]]                    # (L, 3)
+    li = np.arange(len(lp_root))
+    l_first = np.repeat(l_start, l_len)
+    prv = np.where(li > l_first, li - 1, l_first + np.repeat(l_len, l_len) - 1)
+    nxl = np.where(li + 1 < l_first + np.repeat(l_len, l_len), li + 1, l_first)
+    e1 = lp_pts - lp_pts[prv]
+    e2 = lp_pts[nxl] - lp_pts
+    turn = (np.cross(e1, e2) * nrm).sum(axis=1)
+    lens = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
+    reflex = turn < -CONVEXITY_EPS * lens
+    kept = turn > 1e-9 * lens
+    bad = np.bincount(np.repeat(np.arange(len(l_start)), l_len), weights=reflex, minlength=len(l_start)) > 0
+    n_kept = np.bincount(np.repeat(np.arange(len(l_start)), l_len), weights=kept, minlength=len(l_start))
+    bad |= n_kept < 3
+    # planarity (only polygons coplanar to rounding merge: triangles of a non-planar face keep their
+    # planes) and the area: the loop's area must be the members' total (winding, overlaps)
+    cm = np.flatnonzero(multi & ok[c_root])
+    cm_root = c_root[cm]
+    ref = np.full(n, -1)
+    ref[cm_root[::-1]] = cm[::-1]                                       # the component's first corner
+    cm_nrm = scene.poly_normals[first_member[cm_root]]
+    hts = ((pts[cm] - pts[ref[cm_root]]) * cm_nrm).sum(axis=1)
+    hmax = np.full(n, -np.inf)
+    hmin = np.full(n, np.inf)
+    np.maximum.at(hmax, cm_root, hts)
+    np.minimum.at(hmin, cm_root, hts)
+    cmax = np.full((n, 3), -np.inf)
+    cmin = np.full((n, 3), np.inf)
+    np.maximum.at(cmax, cm_root, pts[cm])
+    np.minimum.at(cmin, cm_root, pts[cm])
+    rel = pv - pv[:, :1]
+    p_area = 0.5 * np.linalg.norm(np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1), axis=1)
+    area = np.zeros(n)
+    mem = order[multi[c_start]] if len(order) else order
+    np.add.at(area, root[mem], p_area[mem])
+    lr = l_roots
+    bad |= 0.5 * (hmax[lr] - hmin[lr]) > PLANARITY_EPS * (cmax[lr] - cmin[lr]).max(axis=1)
+    kp = np.flatnonzero(kept)
+    k_loop = np.repeat(np.arange(len(l_start)), l_len)[kp]
+    k_pts = lp_pts[kp]
+    k_cnt = np.bincount(k_loop, minlength=len(l_start))
+    k_start = np.cumsum(k_cnt) - k_cnt
+    k_ref = k_pts[k_start[k_loop]] if len(kp) else k_pts
+    k_rel = k_pts - k_ref
+    ki = np.arange(len(kp))
+    k_first = k_start[k_loop]
+    k_nx = np.where(ki + 1 < k_first + k_cnt[k_loop], ki + 1, k_first)
+    cr = np.cross(k_rel, k_rel[k_nx]) if len(kp) else k_rel
+    cr_sum = np.zeros((len(l_start), 3))
+    np.add.at(cr_sum, k_loop, cr)
+    loop_area = 0.5 * (cr_sum * scene.poly_normals[first_member[lr]]).sum(axis=1)
+    ext = np.full((len(l_start), 3), -np.inf)
+    ext_lo = np.full((len(l_start), 3), np.inf)
+    l_of = np.repeat(np.arange(len(l_start)), l_len)
+    np.maximum.at(ext, l_of, lp_pts)
+    np.minimum.at(ext_lo, l_of, lp_pts)
+    lsize = (ext - ext_lo).max(axis=1) if len(l_start) else np.zeros(0)
+    bad |= np.abs(loop_area - area[lr]) > 1e-9 * np.maximum(area[lr], lsize * lsize * 1e-12)
+    ok[lr[bad]] = False
+    # ---- occluders: merged components (one each) and the rest (one per polygon), in today's order
+    merged = ok & (comp_size > 1)
+    single_polys = order[~merged[root[order]]]
+    merged_roots = np.flatnonzero(merged)
+    o_first = np.concatenate([pos[single_polys], comp_first[merged_roots]])
+    o_second = np.concatenate([pos[single_polys], np.full(len(merged_roots), -1)])
+    o_order = np.lexsort((o_second, o_first))
+    n_single = len(single_polys)
+    occ_of_item = np.empty(len(o_order), dtype=np.int64)
+    occ_of_item[o_order] = np.arange(len(o_order))
+    members = np.full(n, -1)
+    members[single_polys] = occ_of_item[:n_single]
+    merged_occ = np.full(n, -1)
+    merged_occ[merged_roots] = occ_of_item[n_single:]
+    in_merged = order[merged[root[order]]]
+    members[in_merged] = merged_occ[root[in_merged]]
+    # vertex lists
+    lg = merged[lr]
+    m_loop = np.flatnonzero(lg)
+    kept_mask = lg[k_loop]
+    counts_o = np.zeros(len(o_order), dtype=np.int64)
+    counts_o[members[single_polys]] = pc[single_polys]
+    counts_o[merged_occ[lr[m_loop]]] = k_cnt[m_loop]
+    o_start = np.cumsum(counts_o) - counts_o
+    points = np.empty((int(counts_o.sum()), 3))
+    sv = pv[single_polys][np.arange(pv.shape[1])[None, :] < pc[single_polys][:, None]]
+    dst = np.repeat(o_start[members[single_polys]], pc[single_polys]) + (
+        np.arange(len(sv)) - np.repeat(np.cumsum(pc[single_polys]) - pc[single_polys], pc[single_polys]))
+    points[dst] = sv
+    kk = np.flatnonzero(kept_mask)
+    k_occ = merged_occ[lr[k_loop[kk]]]
+    points[o_start[k_occ] + (kk - k_start[k_loop[kk]])] = k_pts[kk]
+    return members, counts_o, points
+
+
+def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluders:
     """Merge coplanar edge-connected convex polygons into convex occluders (exact; see module doc).
 
     With ``solids`` the convex solids among them are found too (:mod:`.solids`); without, every face
-    occludes on its own (the same result, slower; for tests and benchmarks).
+    occludes on its own (the same result, slower; for tests and benchmarks). ``step(name)``, if given,
+    is called after each phase (``"merged faces"``, ``"depth tables"``, ``"tiles"``, ``"solids"``): the
+    scene preparation's progress and cancel hook (see :func:`.chunk.prepare_scene`).
     """
+    step = step or (lambda name: None)
     n = scene.n_polygons
-    members = np.arange(n)
-    loops: list[np.ndarray] = []
     if n:
-        # group by plane: quantised normal and offset (relative to the scene size)
-        size = float(np.ptp(scene.poly_centers, axis=0).max() + scene.poly_radii.max()) or 1.0
-        key = np.concatenate([np.round(scene.poly_normals * 1e9), np.round(scene.poly_offsets / size * 1e9)[:, None]],
-                             axis=1)
-        _, plane_id = np.unique(key, axis=0, return_inverse=True)
-        plane_id = plane_id.reshape(-1)
-        # identical copies are projected once (Scene._find_duplicates): only representatives occlude
-        reps = np.flatnonzero(scene.dup_rep == np.arange(n))
-        order = reps[np.argsort(plane_id[reps], kind="stable")]
-        bounds = np.flatnonzero(np.diff(plane_id[order])) + 1
-        members = np.full(n, -1)
-        for grp in np.split(order, bounds):
-            merged = None
-            if len(grp) > 1:
-                comps = _components(scene, grp)
-                for comp in comps:
-                    merged = _merge_group(scene, comp) if len(comp) > 1 else None
-                    if merged is None:
-                        for i in comp:
-                            members[i] = len(loops)
-                            loops.append(scene.poly_vertices[i, : scene.poly_counts[i]])
-                    else:
-                        members[comp] = len(loops)
-                        loops.append(merged)
-            else:
-                members[grp[0]] = len(loops)
-                loops.append(scene.poly_vertices[grp[0], : scene.poly_counts[grp[0]]])
-    kmax = max((len(p) for p in loops), default=3)
-    counts = np.array([len(p) for p in loops], dtype=np.int64)
-    verts = np.zeros((len(loops), kmax, 3))
-    for o, p in enumerate(loops):
-        verts[o, : len(p)] = p
-        verts[o, len(p):] = p[-1]
+        members, counts, points = _merged_faces(scene)
+    else:
+        members, counts, points = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    n_loops = len(counts)
+    kmax = int(counts.max(initial=3))
+    # padded (n_o, kmax, 3): padding repeats the last vertex
+    o_start = np.cumsum(counts) - counts
+    slot = np.minimum(np.arange(kmax)[None, :], np.maximum(counts, 1)[:, None] - 1)
+    verts = points[o_start[:, None] + slot] if n_loops else np.zeros((0, kmax, 3))
     rel = verts - verts[:, :1]
     area_vec = 0.5 * np.cross(rel, np.roll(rel, -1, axis=1)).sum(axis=1)
-    normals = area_vec / np.linalg.norm(area_vec, axis=1, keepdims=True) if len(loops) else np.zeros((0, 3))
+    normals = area_vec / np.linalg.norm(area_vec, axis=1, keepdims=True) if n_loops else np.zeros((0, 3))
     valid = np.arange(kmax)[None, :] < counts[:, None]
     centers = (verts * valid[..., None]).sum(axis=1) / np.maximum(counts, 1)[:, None]
-    radii = np.where(valid, np.linalg.norm(verts - centers[:, None], axis=2), 0.0).max(axis=1) if len(loops) \
+    radii = np.where(valid, np.linalg.norm(verts - centers[:, None], axis=2), 0.0).max(axis=1) if n_loops \
         else np.zeros(0)
 
+    step("merged faces")
     occ_tilt, occ_noise = plane_uncertainty(verts)
     # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
-    n_o = len(loops)
+    n_o = n_loops
     none = np.zeros((0, n_o), dtype=bool)
     b_pos, b_neg, bb_pos, bb_neg = (_beyond(scene.poly_vertices, scene.poly_counts, verts, normals, occ_tilt) if n
                                     else (none,) * 4)
@@ -249,9 +394,11 @@ def build_occluders(scene: Scene, *, solids: bool = True) -> Occluders:
     occ_coplanar = on_o & on_o.T
     occ_pos = np.where(occ_coplanar, ob_pos, o_pos) | (on_o & ~on_o.T)
     occ_neg = np.where(occ_coplanar, ob_neg, o_neg) | (on_o & ~on_o.T)
+    step("depth tables")
     if n:
         members = members[scene.dup_rep]
-    tiles = _tiles(scene, members, len(loops))
+    tiles = _tiles(scene, members, n_o)
+    step("tiles")
     # coplanar overlapping surfaces (duplicates, reversed copies): polygon i lies in the plane of
     # occluder o but is not part of it; the visibility stage lets one of them win where they overlap
     if n:
@@ -259,12 +406,13 @@ def build_occluders(scene: Scene, *, solids: bool = True) -> Occluders:
     ci, co = np.nonzero(coplanar)
     cop_ptr = np.zeros(n + 1, dtype=np.int64)
     np.add.at(cop_ptr, ci + 1, 1)
-    first_source = np.full(len(loops), np.iinfo(np.int64).max)
+    first_source = np.full(n_o, np.iinfo(np.int64).max)
     if n:
         np.minimum.at(first_source, members, scene.poly_source)
     # convex solids: their volumes are extra occluder columns (see :mod:`.solids`)
     sol = build_solids(verts, counts, normals, occ_tilt, occ_noise) if solids else no_solids()
     fs = sol.face_solid
+    step("solids")
 
     def per_solid(table):  # (r, n_o) -> (r, n_s): any face of the solid
         out = np.zeros((table.shape[0], sol.n), dtype=bool)
@@ -293,40 +441,53 @@ TILE_SIZE = 16
 
 
 def _tiles(scene: Scene, members: np.ndarray, n_o: int):
-    """Spatial tiles of every occluder's members: a grid over the face's two longest extents."""
+    """Spatial tiles of every occluder's members: a grid over the face's two longest extents
+    (about :data:`TILE_SIZE` members per cell), all occluders at once (O(n log n))."""
     n = scene.n_polygons
-    tile_of = np.zeros(n, dtype=np.int64)
-    corners, occ_of = [], []
+    if not n:
+        z = np.zeros(0, dtype=np.int64)
+        return z, np.zeros((0, 8, 3)), np.zeros((0, 3)), np.zeros(0), z, np.zeros(1, dtype=np.int64), z
     order = np.argsort(members, kind="stable")
-    bounds = np.flatnonzero(np.diff(members[order])) + 1
-    for grp in np.split(order, bounds) if n else []:
-        c = scene.poly_centers[grp]
-        cells = max(1, int(round(np.sqrt(len(grp) / TILE_SIZE))))
-        if cells == 1:
-            keys = np.zeros(len(grp), dtype=np.int64)
-        else:
-            ext = np.ptp(c, axis=0)
-            a, b = np.argsort(ext)[::-1][:2]
-            ia = np.minimum((c[:, a] - c[:, a].min()) / max(ext[a], 1e-300) * cells, cells - 1).astype(np.int64)
-            ib = np.minimum((c[:, b] - c[:, b].min()) / max(ext[b], 1e-300) * cells, cells - 1).astype(np.int64)
-            keys = ia * cells + ib
-        uniq, inv = np.unique(keys, return_inverse=True)
-        base = len(occ_of)
-        tile_of[grp] = base + inv.reshape(-1)
-        for t in range(len(uniq)):
-            sel = grp[inv.reshape(-1) == t]
-            pv = scene.poly_vertices[sel].reshape(-1, 3)
-            lo, hi = pv.min(axis=0), pv.max(axis=0)
-            corners.append(np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                                     for z in (lo[2], hi[2])]))
-            occ_of.append(members[grp[0]])
-    corners = np.array(corners).reshape(-1, 8, 3)
+    m_sorted = members[order]
+    g_start = np.flatnonzero(np.r_[True, m_sorted[1:] != m_sorted[:-1]])
+    g_size = np.diff(np.append(g_start, n))
+    g_of = np.repeat(np.arange(len(g_start)), g_size)
+    c = scene.poly_centers[order]
+    cells = np.maximum(1, np.rint(np.sqrt(g_size / TILE_SIZE))).astype(np.int64)
+    c_lo = np.minimum.reduceat(c, g_start, axis=0)
+    ext = np.maximum.reduceat(c, g_start, axis=0) - c_lo
+    axes = np.argsort(ext, axis=1, kind="stable")[:, ::-1]
+    keys = np.zeros(n, dtype=np.int64)
+    split = cells[g_of] > 1
+    if split.any():
+        rows = np.flatnonzero(split)
+        g = g_of[rows]
+        cg = cells[g]
+        ij = []
+        for col in (0, 1):
+            ax = axes[g, col]
+            e = ext[g, ax]
+            ij.append(np.minimum((c[rows, ax] - c_lo[g, ax]) / np.maximum(e, 1e-300) * cg, cg - 1).astype(np.int64))
+        keys[rows] = ij[0] * cg + ij[1]
+    t_srt = np.lexsort((keys, g_of))
+    sk_g, sk_k = g_of[t_srt], keys[t_srt]
+    new_t = np.r_[True, (sk_g[1:] != sk_g[:-1]) | (sk_k[1:] != sk_k[:-1])]
+    t_id = np.cumsum(new_t) - 1
+    tile_of = np.empty(n, dtype=np.int64)
+    tile_of[order[t_srt]] = t_id
+    t_start = np.flatnonzero(new_t)
+    pv = scene.poly_vertices[order[t_srt]]                                    # (n, K, 3), padding repeats
+    lo = np.minimum.reduceat(pv.min(axis=1), t_start, axis=0)
+    hi = np.maximum.reduceat(pv.max(axis=1), t_start, axis=0)
+    bits = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=bool)   # (8, 3)
+    corners = np.where(bits[None], hi[:, None, :], lo[:, None, :])
+    occ_of = m_sorted[t_srt][t_start]
     centers = corners.mean(axis=1)
-    radii = np.linalg.norm(corners - centers[:, None], axis=2).max(axis=1) if len(corners) else np.zeros(0)
+    radii = np.linalg.norm(corners - centers[:, None], axis=2).max(axis=1)
     tile_members = np.argsort(tile_of, kind="stable")
     tile_ptr = np.zeros(len(corners) + 1, dtype=np.int64)
     np.add.at(tile_ptr, tile_of + 1, 1)
-    return tile_of, corners, centers, radii, np.array(occ_of, dtype=np.int64), np.cumsum(tile_ptr), tile_members
+    return tile_of, corners, centers, radii, occ_of.astype(np.int64), np.cumsum(tile_ptr), tile_members
 
 
 #: relative rounding of the plane distances in :func:`_beyond` (differences of coordinates and a unit
@@ -358,50 +519,36 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
     step = max(1, int(2e6 // max(1, n_o * k)))
     noise_b = COORD_EPS * np.abs(body_verts).max(axis=(1, 2))                           # (B,)
     noise_o = COORD_EPS * np.abs(occ_verts).max(axis=(1, 2))                            # (n_o,)
+    o0 = [np.ascontiguousarray(occ_verts[:, 0, c]) for c in range(3)]
+    on = [np.ascontiguousarray(occ_normals[:, c]) for c in range(3)]
+    coef = 4 * PLANE_EPS + occ_tilt[None, :]
     for s in range(0, b_n, step):
-        rel = body_verts[s:s + step, :, None, :] - occ_verts[None, None, :, 0, :]     # (b, K, n_o, 3)
-        d = (rel * occ_normals[None, None]).sum(axis=3)                               # (b, K, n_o)
-        reach = np.abs(rel).max(axis=3)                                                # (b, K, n_o)
-        noise = noise_b[s:s + step, None, None] + noise_o[None, None, :]
-        eps = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach + noise
-        eps_body = (4 * PLANE_EPS + occ_tilt[None, None, :]) * reach.max(axis=1, keepdims=True) + noise
-        d = np.where(valid[s:s + step, :, None], d, 0.0)
-        # a vertex off the plane by more than rounding but within the decision tolerance may be on either
-        # side: as a filter, it counts for both. Rounding here is that of d itself (a few ulp of |rel|):
-        # the relative tolerance 4 PLANE_EPS |rel| is far wider for a vertex far from the plane's
-        # reference vertex (a 1e6 quad seen against a 1e-6 triangle's plane: 3e-6 > the quad's true 1e-6
-        # reach to the triangle's near side, which decides whether the quad can hide part of it)
-        unsure = ((np.abs(d) > _ROUNDING * reach + noise) & (np.abs(d) <= eps)).any(axis=1)
-        pos[s:s + step] = (d > eps).any(axis=1) | unsure
-        neg[s:s + step] = (d < -eps).any(axis=1) | unsure
-        pos_body[s:s + step] = (d > eps_body).any(axis=1)
-        neg_body[s:s + step] = (d < -eps_body).any(axis=1)
-    return pos, neg, pos_body, neg_body
-
-
-def _components(scene: Scene, group: np.ndarray) -> list[np.ndarray]:
-    """Edge-connected components (shared edges with identical end points) of a coplanar group."""
-    parent = {int(i): int(i) for i in group}
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    owner: dict[tuple[bytes, bytes], int] = {}
-    for i in group:
-        k = scene.poly_counts[i]
-        keys = [v.tobytes() for v in scene.poly_vertices[i, :k]]
+        bv = body_verts[s:s + step]
+        noise = noise_b[s:s + step, None] + noise_o[None, :]                         # (b, n_o)
+        # slot by slot, (b, n_o) per coordinate: the same sums in the same order as over a last axis of 3
+        ds, rs = [], []
         for j in range(k):
-            a, b = keys[j], keys[(j + 1) % k]
-            other = owner.get((b, a))
-            if other is not None:
-                ra, rb = find(int(i)), find(other)
-                if ra != rb:
-                    parent[ra] = rb
-            owner[(a, b)] = int(i)
-    comps: dict[int, list[int]] = {}
-    for i in group:
-        comps.setdefault(find(int(i)), []).append(int(i))
-    return [np.array(c) for c in comps.values()]
+            rel = [bv[:, j, c][:, None] - o0[c] for c in range(3)]
+            d = rel[0] * on[0] + rel[1] * on[1] + rel[2] * on[2]
+            rs.append(np.maximum(np.maximum(np.abs(rel[0]), np.abs(rel[1])), np.abs(rel[2])))
+            ds.append(np.where(valid[s:s + step, j, None], d, 0.0))
+        eps_body = coef * np.maximum.reduce(rs) + noise
+        p, ng, pb, nb, unsure = (np.zeros(ds[0].shape, dtype=bool) for _ in range(5))
+        for d, reach in zip(ds, rs):
+            eps = coef * reach + noise
+            ad = np.abs(d)
+            # a vertex off the plane by more than rounding but within the decision tolerance may be on
+            # either side: as a filter, it counts for both. Rounding here is that of d itself (a few ulp
+            # of |rel|): the relative tolerance 4 PLANE_EPS |rel| is far wider for a vertex far from the
+            # plane's reference vertex (a 1e6 quad seen against a 1e-6 triangle's plane: 3e-6 > the
+            # quad's true 1e-6 reach to the triangle's near side, which decides whether it can hide it)
+            unsure |= (ad > _ROUNDING * reach + noise) & (ad <= eps)
+            p |= d > eps
+            ng |= d < -eps
+            pb |= d > eps_body
+            nb |= d < -eps_body
+        pos[s:s + step] = p | unsure
+        neg[s:s + step] = ng | unsure
+        pos_body[s:s + step] = pb
+        neg_body[s:s + step] = nb
+    return pos, neg, pos_body, neg_body

@@ -19,77 +19,40 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .clear_tiles import TileEdges, clear_form_factors, clear_irradiance, clear_pairs, tile_edges
-from .culling import Occluders, build_occluders
-from .form_factor import contour_integral
-from .parallel import PREPARE_LOCK, Cancelled, run_chunks
-from .projection import hemisphere_candidates
-from .rowops import take_rows
+from .chunk import (
+    DEFAULT_BUDGET,
+    Cancelled,
+    contour_by_width,
+    prepare_scene,
+    scene_hierarchy,
+    scene_occluders,
+    scene_tile_edges,
+    visible,
+    visible_fragments_with_ff,
+)
+from .clear_tiles import clear_form_factors, clear_irradiance
+from .culling import Occluders
+from .parallel import PREPARE_LOCK, run_chunks
+from .receivers import prepare_receivers
 from .scene import Scene
-from .tolerances import COORD_EPS
-from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes, visible_terms
 
-__all__ = ["Cancelled", "form_factors", "irradiance", "radiance", "visible_fragments_and_clear_tiles",
+__all__ = ["Cancelled", "form_factors", "irradiance", "prepare_scene", "radiance", "visible_fragments_and_clear_tiles",
            "visible_fragments_with_ff"]
 
-DEFAULT_BUDGET = 2**19
 #: at most this many receivers per chunk: small scenes' chunks then stay in cache (175 polygons: chunks
 #: of 150–220 points are ~10 % faster than of 744; the per-chunk overhead is already negligible there)
 MAX_CHUNK_POINTS = 192
+#: irradiance chunks are sized as for a scene of at most this many polygons (see :func:`irradiance`)
+IRRADIANCE_CHUNK_POLYGONS = 682
 
 
-def _prepare_receivers(points, normals, limit_directions=None, *, single=False):
-    """Validate receivers; return ``P (m, 3)``, unit ``N (m, 3)`` and tangent ``U (m, 3)`` or None."""
-    p = np.asarray(points, dtype=np.float64)
-    n = np.asarray(normals, dtype=np.float64)
-    if single:
-        p, n = p.reshape(1, -1), n.reshape(1, -1)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"points must have shape (m, 3), got {p.shape}")
-    if n.shape != p.shape:
-        raise ValueError(f"normals must have shape {p.shape}, got {n.shape}")
-    bad = np.flatnonzero(~(np.isfinite(p).all(axis=1) & np.isfinite(n).all(axis=1)))
-    if len(bad):
-        raise ValueError(f"receiver {int(bad[0])} has a non-finite point or normal ({p[bad[0]]}, {n[bad[0]]})")
-    length = np.linalg.norm(n, axis=1)
-    bad = np.flatnonzero(~(length > 0))
-    if len(bad):
-        raise ValueError(f"receiver {int(bad[0])} has a zero normal")
-    n = n / length[:, None]
-    u = None
-    if limit_directions is not None:
-        u = np.asarray(limit_directions, dtype=np.float64)
-        if single:
-            u = u.reshape(1, -1)
-        if u.shape != p.shape:
-            raise ValueError(f"limit_directions must have shape {p.shape}, got {u.shape}")
-        if not np.isfinite(u).all():
-            raise ValueError("limit_directions must be finite")
-        u = u - np.einsum("mc,mc->m", u, n)[:, None] * n       # keep it in the tangent plane
-        ul = np.linalg.norm(u, axis=1)
-        u = np.where((ul > 1e-12)[:, None], u / np.where(ul > 0, ul, 1.0)[:, None], 0.0)
-        if not u.any():
-            u = None
-    return p, n, u
-
-
-def _occluders(scene: Scene, occluders: Occluders | None) -> Occluders:
-    if occluders is not None:
-        return occluders
-    occ = getattr(scene, "_occluders", None)
-    if occ is None:
-        occ = build_occluders(scene)
-        scene._occluders = occ
-    return occ
-
-
-def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occluders=None, include=None):
-    """Visible fragments of every polygon for receivers ``points, normals (m, 3)`` and their form factors.
-
-    Returns ``(fragments, ff)`` with ``ff (F,)`` the form factor of each fragment (eq. 4, >= 0).
-    """
-    frags, ff, _ = _visible(scene, points, normals, limit, _occluders(scene, occluders), include, use_clear=False)
-    return frags, ff
+# the visibility stage of a chunk and the scene preparation live in .chunk (also used by the inspector's
+# project_point); these names stay here for the callers of the batch drivers
+_prepare_receivers = prepare_receivers
+_occluders = scene_occluders
+_visible = visible
+_contour_by_width = contour_by_width
+_tile_edges = scene_tile_edges
 
 
 def visible_fragments_and_clear_tiles(scene: Scene, points, normals, limit=None, *, occluders=None, include=None):
@@ -99,78 +62,11 @@ def visible_fragments_and_clear_tiles(scene: Scene, points, normals, limit=None,
     return _visible(scene, points, normals, limit, _occluders(scene, occluders), include, use_clear=True, signed=False)
 
 
-def _tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
-    cached = getattr(scene, "_tile_edges", None)
-    if cached is None or cached[0] is not occ:
-        cached = (occ, tile_edges(scene, occ))
-        scene._tile_edges = cached
-    return cached[1]
-
-
-def _visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool,
-             signed: bool | None = None):
-    """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
-    fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
-    ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
-    :func:`.visibility.visible_terms`): ``ff`` is then negative for the terms to subtract, and the
-    fragments carry no vertices (``verts`` None), only their ids; ``signed=False`` keeps the clear tiles
-    apart but subtracts the rest into real fragments."""
-    signed = use_clear if signed is None else signed
-    reps = scene.dup_rep == np.arange(scene.n_polygons)
-    if not reps.all():  # identical copies are projected once (see Scene._find_duplicates)
-        include = reps[None, :] if include is None else include & reps[None, :]
-    sv, table = shadow_volumes(occ, points, normals, limit)
-    cov = coverage(sv, table, occ, points)
-    skip = cov.hidden_tiles
-    clear = None
-    if use_clear and len(occ.tile_occluder):
-        te = _tile_edges(scene, occ)
-        pairs = clear_pairs(te, occ, cov, sv, table, points, normals, limit)
-        skip = skip | pairs.mask
-        clear = (pairs, te)
-    cand = hemisphere_candidates(scene, points, normals, limit, include, occ, skip)
-    ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
-    allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
-    flat = None if cand.flat is None else (cand.flat, scene.poly_normals)
-    if signed:
-        # signed terms, integrated set by set; the sums need only their ids (verts None)
-        terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
-        ff = np.concatenate([sign * np.maximum(t.side * _contour_by_width(t, normals, points), 0.0)
-                             for t, sign in terms] or [np.zeros(0)])
-        frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
-                                        for a in ("counts", "point", "poly", "side", "owner")))
-    else:
-        frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
-        # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
-        ff = np.maximum(frags.side * _contour_by_width(frags, normals, points), 0.0)
-    if not reps.all():
-        # credit each fragment to the copy that faces the receiver (then the lowest index)
-        rep = frags.poly
-        opp = scene.dup_opp[rep]
-        use_opp = (frags.side > 0) & (opp >= 0)
-        frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
-        frags.side = np.where(use_opp, -frags.side, frags.side)
-    return frags, ff, clear
-
-
-def _contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
-    """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots."""
-    width = frags.verts.shape[1]
-    small = frags.counts <= 4
-    noise = None if frags.inf is None else COORD_EPS * np.abs(points).max(axis=1)[frags.point]
-    if width <= 4 or small.all() or not small.any():
-        return contour_integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise)
-    out = np.empty(len(frags.counts))
-    for sel, w in ((np.flatnonzero(small), 4), (np.flatnonzero(~small), width)):
-        out[sel] = contour_integral(take_rows(frags.verts[:, :w], sel), take_rows(normals, frags.point[sel]),
-                                    None if frags.inf is None else take_rows(frags.inf[:, :w], sel),
-                                    None if noise is None else noise[sel])
-    return out
-
-
-def _chunks(scene: Scene, m: int, budget: int):
+def _chunks(scene: Scene, m: int, budget: int, polygons: int | None = None):
+    """Chunks ``(start, end)`` of ``m`` receivers: ``budget // ((polygons + 1) × K)`` points each (at most
+    :data:`MAX_CHUNK_POINTS`); ``polygons`` defaults to the scene's (form factors: the output rows)."""
     k = scene.poly_vertices.shape[1] if scene.n_polygons else 3
-    per_point = max(1, (scene.n_polygons + 1) * k)
+    per_point = max(1, ((scene.n_polygons if polygons is None else polygons) + 1) * k)
     size = max(1, min(m, budget // per_point, MAX_CHUNK_POINTS))
     return [(s, min(m, s + size)) for s in range(0, m, size)]
 
@@ -195,15 +91,17 @@ def _settle_allocator():
 
 
 def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, chunk_fn, out, workers,
-         executor):
-    """``out[s:e] = chunk_fn((scene, occ), p, n, u)`` for every chunk ``(s, e)`` of the receivers, here or on
-    workers (see :func:`.parallel.run_chunks`); ``out`` is ``(m, ...)``."""
+         executor, polygons=None):
+    """``out[s:e] = chunk_fn((scene, occ, budget), p, n, u)`` for every chunk ``(s, e)`` of the receivers
+    (sized by :func:`_chunks` with ``polygons``), here or on workers (see :func:`.parallel.run_chunks`);
+    ``out`` is ``(m, ...)``."""
     _settle_allocator()
     p, n, u = _prepare_receivers(points, normals, limit_directions)
-    chunks = _chunks(scene, len(p), budget)
+    chunks = _chunks(scene, len(p), budget, polygons)
     if len(chunks) > 1 and (executor is not None or workers != 1) and len(occ.tile_occluder):
         with PREPARE_LOCK:
             _tile_edges(scene, occ)  # prepared once here and shipped with the scene, not in every worker
+            scene_hierarchy(scene, occ)
 
     def args_of(s, e):
         # fresh arrays in every case: a chunk sees the same memory layout here and in a worker
@@ -212,16 +110,16 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
     def store(s, e, value):
         out[s:e] = value
 
-    run_chunks(chunk_fn, (scene, occ), chunks, args_of, store, workers=workers, executor=executor,
+    run_chunks(chunk_fn, (scene, occ, budget), chunks, args_of, store, workers=workers, executor=executor,
                progress=progress, cancel=cancel, key=scene)
 
 
 def _form_factor_chunk(shared, p, n, u) -> np.ndarray:
     """One chunk of :func:`form_factors`: ``(m_chunk, n_input)``."""
     _settle_allocator()  # also in worker processes
-    scene, occ = shared
+    scene, occ, budget = shared
     m = len(p)
-    frags, ff, clear = _visible(scene, p, n, u, occ, None, use_clear=True)
+    frags, ff, clear = _visible(scene, p, n, u, occ, None, use_clear=True, budget=budget)
     point, poly = frags.point, frags.poly
     if clear is not None:
         cp, cpoly, cff = clear_form_factors(clear[1], occ, clear[0], p, n, scene.poly_vertices)
@@ -273,8 +171,9 @@ def form_factors(
     out = np.zeros((len(np.asarray(points).reshape(-1, 3)), scene.n_input))
     with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
         occ = _occluders(scene, occluders)
+    # a chunk's output rows hold (points × n_input); its candidates are bounded by the visibility stage
     _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, _form_factor_chunk, out, workers,
-         executor)
+         executor, polygons=max(scene.n_polygons // 8, IRRADIANCE_CHUNK_POLYGONS))
     return out
 
 
@@ -284,8 +183,10 @@ def _emitter_mask(scene: Scene) -> np.ndarray:
         emits = (scene.corner_radiance != 0).any(axis=(1, 2))
     else:
         emits = (scene.poly_radiance != 0).any(axis=1)
-    group = np.zeros(scene.n_polygons, dtype=bool)
-    np.logical_or.at(group, scene.dup_rep, emits)      # a group is projected if any copy emits
+    if (scene.dup_rep == np.arange(scene.n_polygons)).all():
+        return emits
+    # a group is projected if any copy emits (bincount: ufunc.at is ~10x slower on 10^6 polygons)
+    group = np.bincount(scene.dup_rep, weights=emits, minlength=scene.n_polygons) > 0
     return group[scene.dup_rep]
 
 
@@ -318,32 +219,35 @@ def irradiance(
     out = np.zeros((m, 3))
     with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
         occ = _occluders(scene, occluders)
-        _irradiance_inputs(scene)  # once here, and shipped to the workers with the scene
+        _radiance_tables(scene)  # once here, and shipped to the workers with the scene
+    # the chunk's candidates are bounded by the visibility stage itself (it splits a chunk whose surviving
+    # tiles hold too many), and the output is (m, 3): chunks need not shrink with the scene's size
     _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, _irradiance_chunk, out, workers,
-         executor)
+         executor, polygons=min(scene.n_polygons, IRRADIANCE_CHUNK_POLYGONS))
     return out
 
 
-def _irradiance_inputs(scene: Scene):
-    """``(emits (n,) bool, radiance columns (3, n) or None, nonnegative)`` for :func:`irradiance`; cached."""
-    cached = getattr(scene, "_irradiance_inputs", None)
+def _radiance_tables(scene: Scene):
+    """``(emits (n,), radiance columns (3, n) or None, nonnegative)`` for :func:`irradiance`, computed once
+    per scene (O(n) passes per call are what a scene with 10^6 hidden polygons must not cost per point)."""
+    cached = getattr(scene, "_radiance_tables", None)
     if cached is None:
-        emits = _emitter_mask(scene)
-        rad_cols = None if scene.linear else np.ascontiguousarray(scene.poly_radiance.T)  # (3, n) for gathers
+        rad_cols = None if scene.linear else np.ascontiguousarray(scene.poly_radiance.T)   # (3, n) for gathers
         nonnegative = bool((scene.corner_radiance >= 0).all() if scene.linear else (scene.poly_radiance >= 0).all())
-        cached = scene._irradiance_inputs = (emits, rad_cols, nonnegative)
+        cached = (_emitter_mask(scene), rad_cols, nonnegative)
+        scene._radiance_tables = cached
     return cached
 
 
 def _irradiance_chunk(shared, p, n, u) -> np.ndarray:
     """One chunk of :func:`irradiance`: ``(m_chunk, 3)``."""
     _settle_allocator()  # also in worker processes
-    scene, occ = shared
-    emits, rad_cols, nonnegative = _irradiance_inputs(scene)
+    scene, occ, budget = shared
+    emits, rad_cols, nonnegative = _radiance_tables(scene)
     m = len(p)
     out = np.zeros((m, 3))
     include = np.broadcast_to(emits[None, :], (m, scene.n_polygons))
-    frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear)
+    frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=not scene.linear, budget=budget)
     lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
     if scene.linear:
         from .linear_radiance import linear_irradiance

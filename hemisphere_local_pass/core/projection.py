@@ -6,7 +6,7 @@ both sides), polygons entirely below the tangent plane are culled, and the rest 
 tangent plane ``N · x = 0`` — a plane through P, so the clip is exact in 3D, and "all projected
 vertices lie on half of the unit sphere" (sec. 2.2). The central projection itself is only ever needed
 as directions: normalising a fragment's vertices gives its spherical polygon, whose edges are great
-circles, which is what :class:`Projection` hands to the inspector.
+circles, which is what :class:`.inspection.Projection` hands to the inspector.
 
 A polygon whose plane contains P is seen edge-on: it contributes nothing and hides nothing. In a
 one-sided limit (``limit_direction u``: the value at ``P + εu``, ε → 0+) such a polygon is on the side
@@ -22,12 +22,11 @@ import numpy as np
 from .clipping import split_convex
 from .csr import expand
 from .form_factor import edge_noise
-from .rowops import any_rows, nonzero_rows, sides, take_rows
+from .rowops import any_rows, sides, take_rows
 from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["Candidates", "Projection", "flat_rows", "hemisphere_candidates", "onto_planes_through_p", "project_point",
-           "receiver_side"]
+__all__ = ["Candidates", "flat_rows", "hemisphere_candidates", "onto_planes_through_p", "receiver_side"]
 
 
 def _side(d, tol, d_inf, tilt=0.0):
@@ -112,7 +111,8 @@ class Candidates:
         polygon's plane (+1 behind, -1 in front); verts: (C, K, 3) clipped P-local vertices;
         inf: (C, K, 3) first-order parts or None; counts: (C,); flat: (C,) bool or None — in a
         one-sided limit, the candidates whose plane contains P (their vertices were moved exactly into
-        the plane through P, see :func:`flat_rows`, and so must every piece cut from them).
+        the plane through P, see :func:`flat_rows`, and so must every piece cut from them);
+        pair: (C,) the (receiver, tile) pair of :class:`.hierarchy.TilePairs` each candidate came from.
     """
 
     point: np.ndarray
@@ -122,43 +122,30 @@ class Candidates:
     inf: np.ndarray | None
     counts: np.ndarray
     flat: np.ndarray | None = None
+    pair: np.ndarray | None = None
 
 
-def _tile_pairs(occ, points, normals, hidden_tiles):
-    """(receiver, polygon) pairs of the tiles that reach above each receiver's horizon and are not
-    known to be hidden: the hierarchy's first cut, dense over tiles only. Returns ``cp, ci (C,)``."""
-    rel_t = occ.tile_centers[None] - points[:, None]                            # (m, T, 3)
-    height_t = np.matmul(rel_t, normals[:, :, None])[..., 0]
-    dist_t = np.sqrt((rel_t * rel_t).sum(axis=2))
-    # a member vertex above the horizon lies in the tile's box, so inside its sphere (margin: rounding)
-    above = height_t + occ.tile_radii[None] > -PLANE_EPS * (dist_t + occ.tile_radii[None])
-    if hidden_tiles is not None:
-        above &= ~hidden_tiles
-    tp, tt = nonzero_rows(above)
-    b, ci = expand(tt, occ.tile_ptr, occ.tile_members)
-    return tp[b], ci
-
-
-def hemisphere_candidates(scene: Scene, points, normals, limit, include, occluders, hidden_tiles=None) -> Candidates:
+def hemisphere_candidates(scene: Scene, points, normals, limit, include, occluders, tiles) -> Candidates:
     """Cull and clip every polygon to the upper hemisphere of every receiver.
 
     Args:
         points, normals: (m, 3) receivers; limit: (m, 3) limit directions (zero rows: none) or None.
         include: optional bool of pairs to consider at all (e.g. emitters only), broadcast to (m, n).
-        occluders: the scene's :class:`~.culling.Occluders`: whole tiles are culled first (horizon, and
-            ``hidden_tiles (m, T)``: tiles known to be hidden or taken by the fast path, see
-            :func:`~.visibility.coverage`), so polygons there cost nothing here.
+        occluders: the scene's :class:`~.culling.Occluders`; tiles: the (receiver, tile) pairs whose
+            members are to be projected (:class:`.hierarchy.TilePairs`: above the horizon, not known to
+            be hidden, not taken by the fast path), so polygons elsewhere cost nothing here.
     Returns:
         the candidates (polygons seen edge-on, with P in their plane, are left out).
     """
-    cp, ci = _tile_pairs(occluders, points, normals, hidden_tiles)
+    pair, ci = expand(tiles.tile, occluders.tile_ptr, occluders.tile_members)
+    cp = tiles.point[pair]
     if include is not None:
         inc = np.asarray(include)
-        if inc.ndim == 2 and inc.shape[0] == 1:      # one row for every receiver
+        if inc.ndim == 2 and (inc.shape[0] == 1 or inc.strides[0] == 0):      # one row for every receiver
             keep = inc[0][ci]
         else:
             keep = np.broadcast_to(inc, (len(points), scene.n_polygons)).ravel()[cp * scene.n_polygons + ci]
-        cp, ci = cp[keep], ci[keep]
+        cp, ci, pair = cp[keep], ci[keep], pair[keep]
     # horizon culling by bounding sphere first (conservative, cheap), then by the vertices
     rel_ci = take_rows(scene.poly_centers, ci)
     rel_ci -= take_rows(points, cp)                                             # (C, 3)
@@ -166,13 +153,13 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     scale = np.sqrt(np.einsum("ij,ij->i", rel_ci, rel_ci)) + scene.poly_radii[ci]
     mask = height_c + scene.poly_radii[ci] > PLANE_EPS * scale
     mask = np.flatnonzero(mask)
-    cp, ci, rel_ci, scale = cp[mask], ci[mask], take_rows(rel_ci, mask), scale[mask]
+    cp, ci, rel_ci, scale, pair = cp[mask], ci[mask], take_rows(rel_ci, mask), scale[mask], pair[mask]
     point_noise = COORD_EPS * np.abs(points).max(axis=1)                        # (m,) the receivers' own
     side = plane_side(take_rows(scene.poly_normals, ci), rel_ci, scene.poly_center_offsets[ci], scale,
                       None if limit is None else limit[cp], scene.poly_tilt[ci],
                       scene.poly_noise[ci] + point_noise[cp])
     keep = side != 0
-    cp, ci, side, scale = cp[keep], ci[keep], side[keep], scale[keep]
+    cp, ci, side, scale, pair = cp[keep], ci[keep], side[keep], scale[keep], pair[keep]
     eps = PLANE_EPS * scale
     # one spare slot: clipping a convex polygon by one plane adds at most one vertex
     verts = take_rows(scene.poly_vertices_spare, ci)                            # (C, K+1, 3)
@@ -190,8 +177,8 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     straddle = any_rows((height < -eps[:, None]) & valid)
     if not above.all():
         up = np.flatnonzero(above)
-        side, cp, ci, verts, counts, height, eps, straddle = (
-            take_rows(x, up) for x in (side, cp, ci, verts, counts, height, eps, straddle))
+        side, cp, ci, verts, counts, height, eps, straddle, pair = (
+            take_rows(x, up) for x in (side, cp, ci, verts, counts, height, eps, straddle, pair))
         flat = None if flat is None else flat[up]
     inf = None
     if limit is not None:
@@ -223,52 +210,4 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
         verts[s], counts[s] = iv, ic
         if inf is not None:
             inf[s] = iinf
-    return Candidates(cp, ci, side, verts, inf, counts, flat)
-
-
-@dataclass
-class Projection:
-    """The exact hemispherical projection seen from one receiver point (for the inspector).
-
-    Attributes:
-        point, normal: (3,) the receiver.
-        fragments: list of (k_i, 3) unit vectors: the visible spherical polygons, positively oriented
-            about P (``v0 . (v1 × v2) > 0``: counter-clockwise seen from outside the sphere); edges are
-            great-circle arcs between consecutive vertices.
-        polygon: (F,) input polygon of each fragment.
-        form_factor: (F,) form factor of each fragment (eq. 4).
-        distance: list of (k_i,) distances from P to the fragment's vertices (paper's dist(v)).
-        polygon_form_factors: (n_input,) visible form factor of every input polygon.
-    """
-
-    point: np.ndarray
-    normal: np.ndarray
-    fragments: list
-    polygon: np.ndarray
-    form_factor: np.ndarray
-    distance: list
-    polygon_form_factors: np.ndarray
-
-
-def project_point(scene: Scene, point, normal, *, limit_direction=None, occluders=None) -> Projection:
-    """Visible fragments of every polygon seen from one receiver point, with their form factors."""
-    from .local_pass import _prepare_receivers, visible_fragments_with_ff
-
-    pts, nrm, lim = _prepare_receivers(point, normal, limit_direction, single=True)
-    frags, ff = visible_fragments_with_ff(scene, pts, nrm, lim, occluders=occluders)
-    fragments, dists = [], []
-    for f in range(len(frags.counts)):
-        k = frags.counts[f]
-        v = frags.verts[f, :k]
-        d = np.linalg.norm(v, axis=1)
-        dirs = v / np.where(d > 0, d, 1.0)[:, None]
-        if frags.inf is not None and (d == 0).any():
-            iv = frags.inf[f, :k]
-            dirs = np.where((d == 0)[:, None], iv / np.linalg.norm(iv, axis=1, keepdims=True), dirs)
-        if frags.side[f] < 0:  # receiver in front: make every fragment positively oriented about P
-            dirs, d = dirs[::-1], d[::-1]
-        fragments.append(dirs)
-        dists.append(d)
-    source = scene.poly_source[frags.poly]
-    per_poly = np.bincount(source, weights=ff, minlength=scene.n_input) if len(ff) else np.zeros(scene.n_input)
-    return Projection(pts[0], nrm[0], fragments, source, ff, dists, per_poly)
+    return Candidates(cp, ci, side, verts, inf, counts, flat, pair)

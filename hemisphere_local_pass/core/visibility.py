@@ -429,51 +429,43 @@ def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
 
 @dataclass
 class Coverage:
-    """What the merged faces (clusters) and their tiles tell before any polygon is looked at.
+    """What the merged faces (clusters) tell before any polygon is looked at (level 1 of sec. 3.4).
 
-    Attributes (Q: shadow-volume instances, I: (receiver, tile) instances):
+    Attributes (Q: shadow-volume instances):
         cluster_covered: (Q,) the cluster of instance q lies wholly inside another volume: all its
             members are hidden, and its own volume is redundant.
         k_ptr (Q+1,), kq: CSR lists of the non-redundant volumes that cut each cluster instance.
-        t_tab: (m, T) tile instance of every (receiver, tile) of a merged face, or -1.
-        t_cov: (I,) tile instance wholly inside one volume; t_ptr (I+1,), t_q: the volumes that cut it.
-        hidden_tiles: (m, T) bool — tiles whose every member is hidden from the receiver.
         ax_o, half_o: (Q, 3), (Q,) bounding cones of the volumes' occluders seen from their receivers.
+        tiles: the tiles that survive the hierarchy (:func:`.hierarchy.visit_tiles`, level 1.5), set
+            by the caller, or None.
     """
 
     cluster_covered: np.ndarray
     k_ptr: np.ndarray
     kq: np.ndarray
-    t_tab: np.ndarray
-    t_cov: np.ndarray
-    t_ptr: np.ndarray
-    t_q: np.ndarray
-    hidden_tiles: np.ndarray
     ax_o: np.ndarray
     half_o: np.ndarray
+    tiles: object = None
 
 
 def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Coverage:
-    """Levels 1 and 1.5 of the culling hierarchy (sec. 3.4), before any member polygon is gathered.
+    """Level 1 of the culling hierarchy (sec. 3.4), before any member polygon is gathered.
 
-    Level 1: every occluder (a merged face: the *cluster* of its member polygons) is tested against
-    every other occluder's shadow volume; a cluster wholly inside a volume has all its members hidden,
-    and as an occluder it is redundant (its shadow volume lies inside the other's), so it is dropped.
-    Level 1.5: the tiles (sec. 3.4's voxels) of large clusters are tested, by the corners of their
-    bounding boxes, against their cluster's cutting volumes. Each test (see :func:`_test_pairs`) needs
-    the body to have a vertex strictly beyond the occluder's plane, on the side away from P.
+    Every occluder (a merged face: the *cluster* of its member polygons) is tested against every other
+    occluder's shadow volume; a cluster wholly inside a volume has all its members hidden, and as an
+    occluder it is redundant (its shadow volume lies inside the other's), so it is dropped. The tiles
+    of large clusters are then tested in :func:`.hierarchy.visit_tiles` (level 1.5). Each test (see
+    :func:`_test_pairs`) needs the body to have a vertex strictly beyond the occluder's plane, on the
+    side away from P.
     """
-    n_q, n_o, m = sv.n_base, occ.n, len(points)
-    n_tiles = len(occ.tile_occluder)
+    n_q = sv.n_base
     o_rel = occ.vol_centers[sv.occluder] - points[sv.point]
     ax_o, half_o, _ = _cone(o_rel, occ.vol_radii[sv.occluder])
     if n_q == 0:
         e = np.zeros(0, dtype=np.int64)
-        return Coverage(np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e, np.full((m, n_tiles), -1),
-                        np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e,
-                        np.zeros((m, n_tiles), dtype=bool), ax_o, half_o)
+        return Coverage(np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e, ax_o, half_o)
 
-    # level 1: clusters (face instances) against shadow volumes, dense over (instance, occluder)
+    # clusters (face instances) against shadow volumes, dense over (instance, occluder)
     n_k = sv.n_face
     k_occ = sv.occluder[:n_k]
     q_tab = table[sv.point[:n_k]]                                                # (K, n_vol)
@@ -500,46 +492,7 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     k_ptr = np.zeros(n_q + 1, dtype=np.int64)
     np.add.at(k_ptr, k_idx + 1, 1)
     k_ptr = np.cumsum(k_ptr)
-
-    # level 1.5: tiles of large clusters against their cluster's cutting volumes
-    # (T,) tiles of merged faces split into several tiles (a face's only tile would repeat level 1)
-    tiled = (np.bincount(occ.members, minlength=n_o)[occ.tile_occluder] > 1) & (
-        np.bincount(occ.tile_occluder, minlength=n_o)[occ.tile_occluder] > 1)
-    t_live = np.flatnonzero(tiled)
-    t_tab = np.full((m, n_tiles), -1, dtype=np.int64)
-    t_ptr = np.zeros(1, dtype=np.int64)
-    t_q = np.zeros(0, dtype=np.int64)
-    t_cov = np.zeros(0, dtype=bool)
-    if len(t_live):
-        tk = table[:, occ.tile_occluder[t_live]]                                # (m, T') cluster instances
-        tk_safe = np.maximum(tk, 0)
-        use = (tk >= 0) & (k_ptr[tk_safe + 1] > k_ptr[tk_safe]) & ~cluster_covered[tk_safe]
-        tp, tt = np.nonzero(use)
-        tile = t_live[tt]
-        t_tab[tp, tile] = np.arange(len(tp))
-        tk = tk[tp, tt]
-        corners = occ.tile_corners[tile] - points[tp][:, None, :]              # (I, 8, 3)
-        t_rel = occ.tile_centers[tile] - points[tp]
-        ax_t, half_t, _ = _cone(t_rel, occ.tile_radii[tile])
-        tb, tq = expand(tk, k_ptr, kq)
-        t_inf = None if sv.inf is None else np.broadcast_to(sv.inf[tk][:, :1], corners.shape).copy()
-        kept, cov, _ = _test_pairs(tb, tq, corners, t_inf, np.full(len(tp), 8), t_rel, occ.tile_radii[tile], sv,
-                                   ax_t, half_t, ax_o, half_o)
-        tb, tq = tb[kept], tq[kept]
-        t_cov = np.zeros(len(tp), dtype=bool)
-        t_cov[tb[cov]] = True
-        live_t = ~cov
-        tb, tq = tb[live_t], tq[live_t]
-        order = np.argsort(tb, kind="stable")
-        t_q = tq[order]
-        t_ptr = np.zeros(len(tp) + 1, dtype=np.int64)
-        np.add.at(t_ptr, tb + 1, 1)
-        t_ptr = np.cumsum(t_ptr)
-
-    k_t = table[:, occ.tile_occluder]                                            # (m, T)
-    hidden_tiles = (k_t >= 0) & np.append(cluster_covered, False)[k_t]
-    hidden_tiles |= (t_tab >= 0) & np.append(t_cov, False)[t_tab]
-    return Coverage(cluster_covered, k_ptr, kq, t_tab, t_cov, t_ptr, t_q, hidden_tiles, ax_o, half_o)
+    return Coverage(cluster_covered, k_ptr, kq, ax_o, half_o)
 
 
 def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: Coverage, occ: Occluders, scene,
@@ -560,16 +513,15 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
         return (np.zeros(c_n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64),
                 np.zeros((0, sv.normal.shape[1]), dtype=bool), np.zeros(c_n, dtype=bool))
     k_of = at2(table, cand.point, occ.members[cand.poly])                       # (C,) cluster instance
-    ti = at2(cov.t_tab, cand.point, occ.tile_of[cand.poly])                     # (C,) tile instance or -1
+    tiles = cov.tiles                                                           # the candidates' tile pairs
+    by_tile = tiles.tested[cand.pair]                                           # (C,) tested at level 1.5
     hidden = np.zeros(c_n, dtype=bool)
     found = k_of >= 0
     hidden[found] = cov.cluster_covered[k_of[found]]
-    by_tile = ti >= 0
-    hidden[by_tile] |= cov.t_cov[ti[by_tile]]
     from_cluster = np.flatnonzero(found & ~by_tile & ~hidden)
     from_tile = np.flatnonzero(by_tile & ~hidden)
     b1, q1 = expand(k_of[from_cluster], cov.k_ptr, cov.kq)
-    b2, q2 = expand(ti[from_tile], cov.t_ptr, cov.t_q)
+    b2, q2 = expand(cand.pair[from_tile], tiles.ptr, tiles.q)
     body = np.concatenate([from_cluster[b1], from_tile[b2]])
     q = np.concatenate([q1, q2])
     if (~found).any():  # a candidate whose cluster was culled (numerically at the horizon): all volumes

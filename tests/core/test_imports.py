@@ -51,3 +51,38 @@ def test_core_public_api():
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "True"
+
+
+def test_core_modules_import_no_cycle():
+    """The core's modules form a layered graph: no import cycle, function-level imports included
+    (``projection`` once imported the batch drivers of ``local_pass`` inside ``project_point``)."""
+    import ast
+
+    core_dir = ROOT / "hemisphere_local_pass" / "core"
+    graph = {}
+    for path in core_dir.glob("*.py"):
+        name = path.stem
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                if node.module:
+                    deps.add(node.module.split(".")[0])
+                else:
+                    deps.update(a.name for a in node.names)
+        graph[name] = deps - {name}
+    graph.pop("__init__", None)
+    state = {}
+
+    def visit(m, path):
+        if state.get(m) == 1:
+            raise AssertionError("import cycle: " + " -> ".join(path + [m]))
+        if state.get(m) == 2 or m not in graph:
+            return
+        state[m] = 1
+        for d in sorted(graph[m]):
+            visit(d, path + [m])
+        state[m] = 2
+
+    for m in sorted(graph):
+        visit(m, [])
+    assert "local_pass" not in graph["projection"] and "local_pass" not in graph["inspection"]

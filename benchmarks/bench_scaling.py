@@ -1,0 +1,267 @@
+"""How the exact local pass scales with the polygon count (issue 10): visible and hidden geometry.
+
+Two series of scenes, all closed Cornell boxes with receivers at camera-visible surface points:
+
+* **visible**: the box subdivided more and more finely (every polygon can be seen from somewhere;
+  constant radiance per part: the light's emission plus 0.1 × reflectivity elsewhere, no first pass);
+* **hidden**: the 175-polygon box plus a subdivided plane of h quads (radiance 0.5) *outside* it,
+  invisible from every receiver: behind the back wall (h = 10^4, 10^5, 10^6) and the issue's case, a
+  300 × 300 plane below the floor (extending 0.5 beyond the box on every side).
+
+For each scene: the preparation (``core.prepare_scene``: merged faces, depth tables, tiles, solids,
+tile edges, hierarchy), the irradiance per point and the form factors per point, and the peak memory
+(tracemalloc, which sees numpy's allocations) of the preparation and of one irradiance call. For the
+hidden series the per-point times are also given as a ratio to the bare 175-polygon box, measured
+interleaved in the same process (this shared VM drifts by ±30 % over minutes: the ratios travel,
+the absolute times less so).
+
+With ``--baseline REV`` the same is measured for the core at git revision REV (exported to a
+temporary directory and imported side by side) on the scenes up to ``--baseline-max`` polygons.
+
+    OMP_NUM_THREADS=1 python benchmarks/bench_scaling.py [--points 256] [--visible 5,20,35,80,160]
+        [--hidden 10000,100000,1000000] [--below 300] [--under 448] [--baseline aa9e604] [--baseline-max 100000]
+
+Writes ``docs/bench_scaling.md``, ``.json`` and ``.png`` (log-log: time against polygons).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+from _common import ROOT, log, machine
+
+from hemisphere_local_pass.core.raycast import build_bvh, cast_rays
+from hemisphere_local_pass.scenes import camera_rays, cornell_box
+
+DOCS = ROOT / "docs"
+
+
+def box_arrays(subdivisions: int):
+    """``(vertices (V, 3), quads (n, 4), radiance (n, 3), box)`` of a closed Cornell box."""
+    box = cornell_box(subdivisions, block_detail=1.05 if subdivisions > 5 else 1.0)
+    rad = box.emission + 0.1 * box.reflectivity * (box.emission.sum(axis=1) == 0)[:, None]
+    return np.asarray(box.vertices), np.array(box.polygons, dtype=np.int64), rad, box
+
+
+def grid(nx: int, origin, du, dv):
+    """An ``nx × nx`` grid of quads spanning ``origin + [0, 1] du + [0, 1] dv``: ``(vertices, quads)``."""
+    s = np.linspace(0.0, 1.0, nx + 1)
+    u, v = np.meshgrid(s, s, indexing="ij")
+    verts = np.asarray(origin) + u.reshape(-1, 1) * np.asarray(du) + v.reshape(-1, 1) * np.asarray(dv)
+    i, j = np.meshgrid(np.arange(nx), np.arange(nx), indexing="ij")
+    a = (i * (nx + 1) + j).ravel()
+    return verts, np.stack([a, a + nx + 1, a + nx + 2, a + 1], axis=1)
+
+
+def hidden_plane(where: str, h: int):
+    """A plane of about ``h`` quads outside the unit box: ``"behind"`` the back wall (y = 1.05, facing
+    the box), ``"below"`` the floor (z = -0.1, 2 × 2, facing up) or ``"under"`` it (z = -1e-3: a ground
+    plane a user put under the box, issue 14 point 16)."""
+    nx = int(round(np.sqrt(h)))
+    if where == "behind":
+        return grid(nx, (-0.25, 1.05, -0.25), (0.0, 0.0, 1.5), (1.5, 0.0, 0.0))
+    z = -0.1 if where == "below" else -1e-3
+    return grid(nx, (-0.5, -0.5, z), (2.0, 0.0, 0.0), (0.0, 2.0, 0.0))
+
+
+def scene_of(core, verts, quads, rad):
+    n = len(quads)
+    loops = quads.ravel()
+    start = np.arange(n, dtype=np.int64) * 4
+    total = np.full(n, 4, dtype=np.int64)
+    return core.Scene.from_arrays(verts, loops, start, total, rad)
+
+
+def receivers(box, scene_core, m: int, seed: int = 0):
+    """Camera-visible points of the box (jittered pixel centres; no point exactly on an edge)."""
+    side = int(np.ceil(np.sqrt(m)))
+    o, d = camera_rays(box, side)
+    rng = np.random.default_rng(seed)
+    d = d + rng.uniform(-0.3, 0.3, d.shape) / side
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    h = cast_rays(scene_core, o, d, bvh=build_bvh(scene_core))
+    keep = np.flatnonzero(h.hit)[:m]
+    return h.point[keep], scene_core.poly_normals[h.polygon[keep]]
+
+
+def load_baseline(rev: str):
+    """The core at git revision ``rev``, imported as a separate package."""
+    tmp = Path(tempfile.mkdtemp(prefix="hlp_baseline_"))
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "hemisphere_local_pass"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
+    (tmp / "hemisphere_local_pass").rename(tmp / "hlp_baseline")
+    sys.path.insert(0, str(tmp))
+    return importlib.import_module("hlp_baseline.core")
+
+
+def prepare(core, scene):
+    """Seconds of the scene preparation (the baseline has no ``prepare_scene``: its first call)."""
+    t = time.perf_counter()
+    if hasattr(core, "prepare_scene"):
+        core.prepare_scene(scene)
+    else:
+        core.irradiance(scene, np.array([[0.5, 0.5, 1e-3]]), np.array([[0.0, 0.0, 1.0]]))
+    return time.perf_counter() - t
+
+
+def per_point(fn, *args, repeat=3):
+    """Fastest of ``repeat`` calls, seconds per point, and the last result."""
+    best, out = np.inf, None
+    m = len(args[1])
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn(*args)
+        best = min(best, (time.perf_counter() - t) / m)
+    return best, out
+
+
+def peak_mb(fn, *args):
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    fn(*args)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return peak / 2**20
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--points", type=int, default=256)
+    ap.add_argument("--ff-points", type=int, default=32, help="receivers for the form factors (output m × n)")
+    ap.add_argument("--visible", default="5,20,35,80,160", help="subdivisions of the visible series")
+    ap.add_argument("--hidden", default="10000,100000,1000000", help="quads behind the back wall")
+    ap.add_argument("--below", type=int, default=300, help="grid side of the plane below the floor (0: none)")
+    ap.add_argument("--under", type=int, default=448, help="grid side of the ground plane under the box (0: none)")
+    ap.add_argument("--baseline", default="", help="git revision to measure side by side")
+    ap.add_argument("--baseline-max", type=int, default=100000, help="largest scene for the baseline")
+    ap.add_argument("--baseline-visible-max", type=int, default=10000,
+                    help="largest visible scene for the baseline (its preparation grows faster than n log n)")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--out", default=str(DOCS / "bench_scaling"), help="output prefix ('' for none)")
+    args = ap.parse_args(argv)
+    core = importlib.import_module("hemisphere_local_pass.core")
+    base = load_baseline(args.baseline) if args.baseline else None
+
+    v0, q0, r0, box0 = box_arrays(5)
+    cases = [("visible", int(s), box_arrays(int(s))) for s in args.visible.split(",") if s]
+    for h in (int(x) for x in args.hidden.split(",") if x):
+        pv, pq = hidden_plane("behind", h)
+        cases.append(("hidden behind wall", len(pq), (np.concatenate([v0, pv]), np.concatenate([q0, pq + len(v0)]),
+                                                      np.concatenate([r0, np.full((len(pq), 3), 0.5)]), box0)))
+    for where, side in (("below", args.below), ("under", args.under)):
+        if side:
+            pv, pq = hidden_plane(where, side**2)
+            cases.append((f"hidden {where} floor", len(pq), (np.concatenate([v0, pv]),
+                                                             np.concatenate([q0, pq + len(v0)]),
+                                                             np.concatenate([r0, np.full((len(pq), 3), 0.5)]), box0)))
+    bare = {"new": scene_of(core, v0, q0, r0)}
+    if base is not None:
+        bare["baseline"] = scene_of(base, v0, q0, r0)
+    for label, mod in (("new", core), ("baseline", base)):
+        if mod is not None:
+            prepare(mod, bare[label])
+    results = []
+    for series, param, (verts, quads, rad, box) in cases:
+        n = len(quads)
+        for label, mod in (("new", core), ("baseline", base)):
+            if mod is None or (label == "baseline" and (n > args.baseline_max or (
+                    series == "visible" and n > args.baseline_visible_max))):
+                continue
+            log(f"[{series} {param}] {n} polygons, {label}")
+            scene = scene_of(mod, verts, quads, rad)
+            p, nrm = receivers(box, scene_of(core, verts, quads, rad) if label == "baseline" else scene, args.points)
+            tracemalloc.start()
+            t_prep = prepare(mod, scene)
+            prep_mb = tracemalloc.get_traced_memory()[1] / 2**20
+            tracemalloc.stop()
+            log(f"  preparation {t_prep:.2f} s, peak {prep_mb:.0f} MB")
+            # interleaved with the bare box, so that the ratio shares the machine's phase
+            t_irr, t_box = [], []
+            for _ in range(args.repeat):
+                t_irr.append(per_point(mod.irradiance, scene, p, nrm, repeat=1)[0])
+                t_box.append(per_point(mod.irradiance, bare[label], p, nrm, repeat=1)[0]
+                             if series != "visible" else np.nan)
+            mf = min(args.ff_points, len(p))
+            t_ff = per_point(mod.form_factors, scene, p[:mf], nrm[:mf], repeat=args.repeat)[0] if n <= 200_000 \
+                else np.nan
+            mem = peak_mb(mod.irradiance, scene, p, nrm)
+            row = {"series": series, "param": param, "polygons": n, "code": label, "points": len(p),
+                   "prep_s": t_prep, "irradiance_ms": 1e3 * min(t_irr), "form_factors_ms": 1e3 * t_ff,
+                   "box_ms": 1e3 * np.nanmin(t_box) if series != "visible" else None,
+                   "ratio_to_box": (min(t_irr) / np.nanmin(t_box)) if series != "visible" else None,
+                   "peak_irradiance_mb": mem, "peak_prep_mb": prep_mb}
+            log(f"  {row}")
+            results.append(row)
+            del scene
+    lines = ["# Scaling of the exact local pass with the polygon count (issue 10)\n",
+             f"Machine: {machine()}\n",
+             f"Command: `OMP_NUM_THREADS=1 python benchmarks/bench_scaling.py --points {args.points} "
+             f"--visible {args.visible} --hidden {args.hidden} --below {args.below} --under {args.under}"
+             + (f" --baseline {args.baseline} --baseline-max {args.baseline_max} --baseline-visible-max "
+                f"{args.baseline_visible_max}" if args.baseline else "") + "`\n",
+             f"Per-point times: fastest of {args.repeat} runs; irradiance over {args.points} camera-visible points, "
+             f"form factors over {args.ff_points} (— above 200,000 polygons: the (m, n) output). *ratio*: "
+             "irradiance per point over that of the bare 175-polygon box (same code, same points), interleaved in "
+             "the same process. "
+             "Peak memory: tracemalloc peaks (numpy arrays included) of the preparation (timed under tracemalloc) "
+             "and of one irradiance call, beyond what the scene already holds.\n",
+             "| series | polygons | code | preparation s | irradiance ms/pt | ratio to the box | "
+             "form factors ms/pt | peak MB (preparation) | peak MB (irradiance) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        ratio = "" if r["ratio_to_box"] is None else f"{r['ratio_to_box']:.2f}"
+        ff = "—" if not np.isfinite(r["form_factors_ms"]) else f"{r['form_factors_ms']:.2f}"
+        lines.append(f"| {r['series']} | {r['polygons']:,} | {r['code']} | {r['prep_s']:.2f} | "
+                     f"{r['irradiance_ms']:.3f} | {ratio} | {ff} | {r['peak_prep_mb']:.0f} | "
+                     f"{r['peak_irradiance_mb']:.0f} |")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.out:
+        Path(args.out + ".md").write_text(text)
+        Path(args.out + ".json").write_text(json.dumps(results, indent=1))
+        plot(results, args.out + ".png")
+        log(f"wrote {args.out}.md, .json, .png")
+
+
+def plot(results, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for code, style in (("new", "-o"), ("baseline", "--s")):
+        for series, colour in (("visible", "C0"), ("hidden behind wall", "C1"), ("hidden below floor", "C2"),
+                               ("hidden under floor", "C3")):
+            rs = sorted((r for r in results if r["code"] == code and r["series"] == series),
+                        key=lambda r: r["polygons"])
+            if not rs:
+                continue
+            x = [r["polygons"] for r in rs]
+            lab = f"{series} ({code})"
+            axes[0].plot(x, [r["irradiance_ms"] for r in rs], style, color=colour, label=lab)
+            axes[1].plot(x, [r["prep_s"] for r in rs], style, color=colour, label=lab)
+    axes[0].set_ylabel("irradiance, ms per point")
+    axes[1].set_ylabel("scene preparation, s")
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("polygons")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,261 @@
+"""One chunk of receivers through the exact pipeline, and the per-scene preparation it needs.
+
+For all receivers of a chunk together (every stage vectorised over receivers):
+
+1. shadow volumes of the merged faces and convex solids (:func:`.visibility.shadow_volumes`);
+2. level 1: merged faces (clusters) inside another volume are hidden (:func:`.visibility.coverage`);
+3. level 1.5: the tile hierarchy, front to back, with coverage culling (:func:`.hierarchy.visit_tiles`):
+   only the tiles above the horizon that no nearer occluder covers survive;
+4. clear tiles: surviving tiles nothing cuts are summed over their edges (:mod:`.clear_tiles`);
+5. the members of the other surviving tiles become candidates, clipped to the hemisphere
+   (:func:`.projection.hemisphere_candidates`);
+6. level 2: the volumes that can hide part of each candidate, nearest first
+   (:func:`.visibility.occluder_pairs`); then the exact visible fragments or signed terms, and eq. 4.
+
+Memory: a chunk whose surviving tiles hold more candidate polygons than ``budget / K`` is split in
+halves (recursively), so a chunk's candidate arrays stay below ``budget × 3 × 8`` bytes however many
+receivers it has and whatever the scene size; everything else per chunk is over (receiver, merged face)
+and over the tiles that survive.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .clear_tiles import ClearPairs, TileEdges, clear_pairs, tile_edges
+from .culling import Occluders, build_occluders
+from .form_factor import contour_integral
+from .hierarchy import TileHierarchy, build_hierarchy, visit_tiles
+from .parallel import Cancelled
+from .projection import hemisphere_candidates
+from .rowops import take_rows
+from .scene import Scene
+from .tolerances import COORD_EPS
+from .visibility import Fragments, coverage, occluder_pairs, shadow_volumes, subtract_shadow_volumes, visible_terms
+
+__all__ = ["Cancelled", "PREPARATION_STAGES", "prepare_scene", "visible", "visible_fragments_with_ff"]
+
+DEFAULT_BUDGET = 2**19
+
+#: the phases of :func:`prepare_scene`, in order (``progress(done, len(PREPARATION_STAGES))`` after each)
+PREPARATION_STAGES = ("merged faces", "depth tables", "tiles", "solids", "tile edges", "hierarchy")
+
+
+def prepare_scene(scene: Scene, *, occluders: Occluders | None = None, progress=None, cancel=None) -> Occluders:
+    """Everything the local pass precomputes per scene, cached on the scene; returns its occluders.
+
+    Merged occluders with their depth tables, tiles and convex solids (:func:`.culling.build_occluders`),
+    the tiles' welded edges (:func:`.clear_tiles.tile_edges`) and the tile hierarchy
+    (:func:`.hierarchy.build_hierarchy`) — O(n log n) time and O(n) memory in the number of polygons n
+    when the scene's polygons merge into few faces (the depth tables are polygons × merged faces).
+
+    Args:
+        occluders: prebuilt occluders to use instead of the scene's own.
+        progress: ``progress(done, total)`` after each of the :data:`PREPARATION_STAGES` (total 6),
+            stages already cached included; cancel: checked before each stage, True raises
+            :class:`Cancelled`.
+    """
+    total = len(PREPARATION_STAGES)
+    done = [0]
+
+    def step(name):
+        done[0] += 1
+        if progress is not None:
+            progress(done[0], total)
+        if cancel is not None and done[0] < total and cancel():
+            raise Cancelled(f"cancelled while preparing the scene (after {name})")
+
+    if cancel is not None and cancel():
+        raise Cancelled("cancelled before preparing the scene")
+    if occluders is not None:
+        occ = occluders
+        for name in PREPARATION_STAGES[:4]:
+            step(name)
+    else:
+        occ = getattr(scene, "_occluders", None)
+        if occ is None:
+            occ = build_occluders(scene, step=step)
+            scene._occluders = occ
+        else:
+            for name in PREPARATION_STAGES[:4]:
+                step(name)
+    scene_tile_edges(scene, occ)
+    step("tile edges")
+    scene_hierarchy(scene, occ)
+    step("hierarchy")
+    return occ
+
+
+def scene_occluders(scene: Scene, occluders: Occluders | None = None) -> Occluders:
+    """``occluders`` or the scene's own (built once and cached on the scene)."""
+    if occluders is not None:
+        return occluders
+    occ = getattr(scene, "_occluders", None)
+    if occ is None:
+        occ = build_occluders(scene)
+        scene._occluders = occ
+    return occ
+
+
+def scene_tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
+    cached = getattr(scene, "_tile_edges", None)
+    if cached is None or cached[0] is not occ:
+        cached = (occ, tile_edges(scene, occ))
+        scene._tile_edges = cached
+    return cached[1]
+
+
+def scene_hierarchy(scene: Scene, occ: Occluders) -> TileHierarchy:
+    cached = getattr(scene, "_hierarchy", None)
+    if cached is None or cached[0] is not occ:
+        cached = (occ, build_hierarchy(occ, scene.poly_radii))
+        scene._hierarchy = cached
+    return cached[1]
+
+
+def visible_fragments_with_ff(scene: Scene, points, normals, limit=None, *, occluders=None, include=None):
+    """Visible fragments of every polygon for receivers ``points, normals (m, 3)`` and their form factors.
+
+    Returns ``(fragments, ff)`` with ``ff (F,)`` the form factor of each fragment (eq. 4, >= 0).
+    """
+    frags, ff, _ = visible(scene, points, normals, limit, scene_occluders(scene, occluders), include,
+                           use_clear=False)
+    return frags, ff
+
+
+def _row(include):
+    """The one row of an ``include`` broadcast along the receivers (or given as one row), else None."""
+    if include is None:
+        return None
+    inc = np.asarray(include)
+    if inc.ndim == 1:
+        return inc
+    if inc.shape[0] == 1 or inc.strides[0] == 0:
+        return inc[0]
+    return None
+
+
+def _representatives(scene: Scene):
+    """``(n,)`` bool: the polygons that represent their group of identical copies, or None when every
+    polygon does (cached on the scene: an O(n) pass per chunk is what hidden geometry must not cost)."""
+    cached = getattr(scene, "_reps", False)
+    if cached is False:
+        reps = scene.dup_rep == np.arange(scene.n_polygons)
+        cached = None if reps.all() else reps
+        scene._reps = cached
+    return cached
+
+
+def _wanted_tiles(scene: Scene, occ: Occluders, row: np.ndarray) -> np.ndarray:
+    """``(T,)`` bool: tiles with a member in ``row (n,)`` (the polygons to project), cached for the row."""
+    cached = getattr(scene, "_wanted", None)
+    if cached is not None and cached[0] is occ and (cached[1] is row or np.array_equal(cached[1], row)):
+        return cached[2]
+    wanted = np.logical_or.reduceat(row[occ.tile_members], occ.tile_ptr[:-1]) if len(occ.tile_members) \
+        else np.zeros(0, dtype=bool)
+    scene._wanted = (occ, row.copy(), wanted)
+    return wanted
+
+
+def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool,
+            budget: int = DEFAULT_BUDGET, signed: bool | None = None):
+    """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
+    fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
+    ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
+    :func:`.visibility.visible_terms`): ``ff`` is then negative for the terms to subtract, and the
+    fragments carry no vertices (``verts`` None), only their ids; ``signed=False`` keeps the clear tiles
+    apart but subtracts the rest into real fragments (the gradients need their edges).
+
+    ``include``: None, or bool (m, n) / (1, n) pairs to project (others only occlude)."""
+    signed = use_clear if signed is None else signed
+    reps = _representatives(scene)
+    row = _row(include)
+    if reps is not None:  # identical copies are projected once (see Scene._find_duplicates)
+        if include is None or row is not None:
+            row = reps if row is None else row & reps
+            include = row[None, :]
+        else:
+            include = include & reps[None, :]
+    sv, table = shadow_volumes(occ, points, normals, limit)
+    cov = coverage(sv, table, occ, points)
+    wanted = None if row is None else _wanted_tiles(scene, occ, row)
+    tiles = visit_tiles(scene_hierarchy(scene, occ), occ, sv, table, cov, points, normals, wanted)
+    cov.tiles = tiles
+    clear = None
+    keep = np.ones(len(tiles.point), dtype=bool)
+    if use_clear and len(occ.tile_occluder):
+        te = scene_tile_edges(scene, occ)
+        pairs = clear_pairs(te, occ, cov, sv, table, points, normals, limit)
+        keep[pairs.pair] = False
+        clear = (pairs, te)
+    k = scene.poly_vertices.shape[1] + 1
+    n_cand = int(np.diff(occ.tile_ptr)[tiles.tile[keep]].sum()) if len(tiles.point) else 0
+    if n_cand * k > budget and len(points) > 1:
+        return _split(scene, points, normals, limit, occ, include, use_clear, budget, signed)
+    tiles = tiles.take(keep) if not keep.all() else tiles
+    cov.tiles = tiles
+    cand = hemisphere_candidates(scene, points, normals, limit, include, occ, tiles)
+    ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
+    allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
+    flat = None if cand.flat is None else (cand.flat, scene.poly_normals)
+    if signed:
+        # signed terms, integrated set by set; the sums need only their ids (verts None)
+        terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
+        ff = np.concatenate([sign * np.maximum(t.side * contour_by_width(t, normals, points), 0.0)
+                             for t, sign in terms] or [np.zeros(0)])
+        frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
+                                        for a in ("counts", "point", "poly", "side", "owner")))
+    else:
+        frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
+        # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
+        ff = np.maximum(frags.side * contour_by_width(frags, normals, points), 0.0)
+    if reps is not None:
+        # credit each fragment to the copy that faces the receiver (then the lowest index)
+        rep = frags.poly
+        opp = scene.dup_opp[rep]
+        use_opp = (frags.side > 0) & (opp >= 0)
+        frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
+        frags.side = np.where(use_opp, -frags.side, frags.side)
+    return frags, ff, clear
+
+
+def _split(scene, points, normals, limit, occ, include, use_clear, budget, signed):
+    """:func:`visible` for the two halves of the receivers, joined (receiver indices as in the whole)."""
+    h = len(points) // 2
+    parts = []
+    for s, e in ((0, h), (h, len(points))):
+        inc = None if include is None else (include if np.asarray(include).shape[0] == 1 else include[s:e])
+        parts.append(visible(scene, points[s:e], normals[s:e], None if limit is None else limit[s:e], occ, inc,
+                             use_clear=use_clear, budget=budget, signed=signed))
+    (f0, ff0, c0), (f1, ff1, c1) = parts
+    f1.point = f1.point + h
+    if f0.verts is None:
+        frags = Fragments(None, None, *(np.concatenate([getattr(f0, a), getattr(f1, a)])
+                                        for a in ("counts", "point", "poly", "side", "owner")))
+    else:
+        frags = Fragments.concat([f0, f1])
+    clear = None
+    if c0 is not None or c1 is not None:
+        cs = [c for c in (c0, c1) if c is not None]
+        offs = [0 if c is c0 else h for c in cs]
+        pairs = ClearPairs(np.concatenate([c[0].point + o for c, o in zip(cs, offs)]),
+                           np.concatenate([c[0].tile for c in cs]), np.concatenate([c[0].side for c in cs]),
+                           np.concatenate([c[0].pair for c in cs]))
+        clear = (pairs, cs[0][1])
+    return frags, np.concatenate([ff0, ff1]), clear
+
+
+def contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
+    """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots."""
+    width = frags.verts.shape[1]
+    small = frags.counts <= 4
+    noise = None if frags.inf is None else COORD_EPS * np.abs(points).max(axis=1)[frags.point]
+    if width <= 4 or small.all() or not small.any():
+        return contour_integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise)
+    out = np.empty(len(frags.counts))
+    for sel, w in ((np.flatnonzero(small), 4), (np.flatnonzero(~small), width)):
+        out[sel] = contour_integral(take_rows(frags.verts[:, :w], sel), take_rows(normals, frags.point[sel]),
+                                    None if frags.inf is None else take_rows(frags.inf[:, :w], sel),
+                                    None if noise is None else noise[sel])
+    return out
+

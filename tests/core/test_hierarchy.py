@@ -1,0 +1,224 @@
+"""The spatial hierarchy (issue 10, sec. 3.4): hidden, coplanar and back-facing geometry costs nothing,
+and nothing about the answer changes.
+
+* Hidden planes outside a closed box (below the floor, behind a wall) give the box's own form factors
+  and irradiance to 1e-13, and no tile of theirs survives the traversal for any receiver.
+* Culling decisions of the hierarchy are exact: with every node decision switched off (only the tiles'
+  own tests) the results are the same to 1e-13, on a box with a window onto a plane behind it.
+* A plane a receiver lies in costs nothing: none of its tiles survives.
+* The tree's boxes and spheres contain their children's; every tile is reached once.
+* Merged faces (the vectorised merge): grids merge into one convex face, L-shapes, rings and
+  T-junctions do not; scene preparation reports progress and can be cancelled.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hemisphere_local_pass.core import Cancelled, Scene, chunk, form_factors, hierarchy, irradiance, prepare_scene
+from hemisphere_local_pass.core.chunk import PREPARATION_STAGES, scene_hierarchy, scene_occluders
+from hemisphere_local_pass.core.raycast import build_bvh, cast_rays
+from hemisphere_local_pass.core.visibility import coverage, shadow_volumes
+from hemisphere_local_pass.scenes import camera_rays, cornell_box
+
+
+def grid(nx, origin, du, dv):
+    s = np.linspace(0.0, 1.0, nx + 1)
+    u, v = np.meshgrid(s, s, indexing="ij")
+    verts = np.asarray(origin) + u.reshape(-1, 1) * np.asarray(du) + v.reshape(-1, 1) * np.asarray(dv)
+    i, j = np.meshgrid(np.arange(nx), np.arange(nx), indexing="ij")
+    a = (i * (nx + 1) + j).ravel()
+    return verts, np.stack([a, a + nx + 1, a + nx + 2, a + 1], axis=1)
+
+
+def box_with(*planes, drop=()):
+    """The 175-polygon box (radiance: emission + 0.1 reflectivity) plus ``planes`` (radiance 0.5), minus
+    the box polygons ``drop``: ``(scene, box scene, box)``."""
+    box = cornell_box(5)
+    quads = np.array(box.polygons)
+    rad = box.emission + 0.1 * box.reflectivity
+    keep = np.setdiff1d(np.arange(len(quads)), drop)
+    verts, polys, radiance = [box.vertices], [quads[keep]], [rad[keep]]
+    base = len(box.vertices)
+    for pv, pq in planes:
+        verts.append(pv)
+        polys.append(pq + base)
+        radiance.append(np.full((len(pq), 3), 0.5))
+        base += len(pv)
+    scene = Scene.from_polygons(np.concatenate(verts), np.concatenate(polys).tolist(), np.concatenate(radiance))
+    bare = Scene.from_polygons(box.vertices, quads[keep].tolist(), rad[keep])
+    return scene, bare, box
+
+
+def receivers(box, scene, m=24, seed=1):
+    o, d = camera_rays(box, int(np.ceil(np.sqrt(m))) + 1)
+    d = d + np.random.default_rng(seed).uniform(-0.02, 0.02, d.shape)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    h = cast_rays(scene, o, d, bvh=build_bvh(scene))
+    keep = np.flatnonzero(h.hit)[:m]
+    return h.point[keep], scene.poly_normals[h.polygon[keep]]
+
+
+def surviving_tiles(scene, p, n):
+    """(receiver, tile) pairs that survive the hierarchy, as (points, occluder of each tile)."""
+    occ = scene_occluders(scene)
+    sv, table = shadow_volumes(occ, p, n)
+    cov = coverage(sv, table, occ, p)
+    tiles = hierarchy.visit_tiles(scene_hierarchy(scene, occ), occ, sv, table, cov, p, n)
+    return tiles, occ
+
+
+BELOW = grid(60, (-0.5, -0.5, -0.1), (2.0, 0.0, 0.0), (0.0, 2.0, 0.0))       # facing up, outside the box
+BEHIND = grid(40, (-0.25, 1.05, -0.25), (0.0, 0.0, 1.5), (1.5, 0.0, 0.0))    # facing the box
+
+
+def test_hidden_planes_change_nothing_and_cost_nothing():
+    scene, bare, box = box_with(BELOW, BEHIND)
+    p, n = receivers(box, bare)
+    f_bare, f = form_factors(bare, p, n), form_factors(scene, p, n)
+    assert np.abs(f[:, :175] - f_bare).max() <= 1e-13
+    assert np.abs(f[:, 175:]).max() == 0.0
+    np.testing.assert_allclose(f.sum(axis=1), 1.0, atol=1e-10)
+    h_bare, h = irradiance(bare, p, n), irradiance(scene, p, n)
+    assert np.abs(h - h_bare).max() <= 1e-13 * np.abs(h_bare).max()
+    tiles, occ = surviving_tiles(scene, p, n)
+    plane_faces = np.unique(occ.members[175:])
+    assert not np.isin(occ.tile_occluder[tiles.tile], plane_faces).any()
+    assert tiles.visited < 60 * len(p)      # a few nodes per receiver, not the planes' 325 tiles
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_node_decisions_change_nothing(monkeypatch, closed):
+    """The hierarchy's own decisions (covered, outside, enclosed) against none at all: the same factors."""
+    box = cornell_box(5)
+    back = [i for i, nm in enumerate(box.names) if nm == "back wall"]
+    drop = () if closed else back[7:10]            # a window in the back wall: the plane behind shows
+    scene, _, box = box_with(BEHIND, BELOW, drop=drop)
+    p, n = receivers(box, scene, m=32, seed=3)
+    f = form_factors(scene, p, n)
+    h = irradiance(scene, p, n)
+    monkeypatch.setattr(hierarchy, "NODE_MARGIN", np.inf)
+    monkeypatch.setattr(hierarchy, "_enclosures", lambda sol, points, normals: (
+        np.zeros(len(points) + 1, dtype=np.int64),) + (np.zeros((0, 3)),) * 2 + (np.zeros(0),) * 2
+        + (np.zeros((0, 3)), np.zeros(0)))
+    fresh = Scene(scene.poly_vertices, scene.poly_counts, scene.poly_source, scene.poly_radiance, scene.n_input)
+    f0 = form_factors(fresh, p, n)
+    h0 = irradiance(fresh, p, n)
+    assert np.abs(f - f0).max() <= 1e-13
+    assert np.abs(h - h0).max() <= 1e-13 * np.abs(h0).max()
+    if not closed:
+        assert f[:, 175 - len(drop):175 - len(drop) + 1600].sum() > 1e-3     # the plane is seen
+
+
+def test_plane_through_the_receivers_costs_nothing():
+    """A big subdivided plane the receivers lie in (a ground plane under the box): seen edge-on, none of
+    its tiles survives, and the box's factors are unchanged."""
+    ground = grid(64, (-4.0, -4.0, -0.5), (8.0, 0.0, 0.0), (0.0, 8.0, 0.0))
+    scene, bare, box = box_with(ground)
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-3.5, -1.5, (16, 2))
+    p = np.column_stack([xy, np.full(16, -0.5)])
+    n = np.tile([0.0, 0.0, 1.0], (16, 1))
+    tiles, occ = surviving_tiles(scene, p, n)
+    assert not np.isin(occ.tile_occluder[tiles.tile], np.unique(occ.members[175:])).any()
+    f_bare, f = form_factors(bare, p, n), form_factors(scene, p, n)
+    assert np.abs(f[:, :175] - f_bare).max() <= 1e-13
+    assert np.abs(f[:, 175:]).max() == 0.0
+
+
+def test_tree_contains_its_children():
+    scene, _, _ = box_with(BELOW)
+    occ = scene_occluders(scene)
+    h = scene_hierarchy(scene, occ)
+    n_t = h.n_tiles
+    assert np.array_equal(np.sort(h.perm), np.arange(n_t))
+    parent = np.repeat(np.arange(len(h.radii)), np.diff(h.child_ptr))
+    c = h.child
+    lo, hi = h.corners.min(axis=1), h.corners.max(axis=1)
+    assert (lo[c] >= lo[parent]).all() and (hi[c] <= hi[parent]).all()
+    reach = np.linalg.norm(h.centers[c] - h.centers[parent], axis=1) + h.radii[c]
+    assert (reach <= h.radii[parent]).all()
+    assert (h.min_radius[c] >= h.min_radius[parent]).all()
+    # every tile is reached exactly once from its face's root
+    seen = np.zeros(n_t, dtype=int)
+    for face, root in enumerate(h.root):
+        stack = [root]
+        while stack:
+            node = stack.pop()
+            if node < n_t:
+                assert occ.tile_occluder[node] == face
+                seen[node] += 1
+            stack.extend(h.child[h.child_ptr[node]:h.child_ptr[node + 1]])
+    assert (seen == 1).all()
+
+
+def _occluder_count(verts, quads):
+    return scene_occluders(Scene.from_polygons(verts, [list(q) for q in quads])).n
+
+
+def test_merged_faces():
+    v, q = grid(6, (0, 0, 0), (1, 0, 0), (0, 1, 0))
+    assert _occluder_count(v, q) == 1                                  # a grid: one convex face
+    cells = q.reshape(6, 6, 4)
+    l_shape = np.concatenate([cells[:3, :3].reshape(-1, 4), cells[3:, :3].reshape(-1, 4),
+                              cells[:3, 3:].reshape(-1, 4)])
+    assert _occluder_count(v, l_shape) == len(l_shape)                # not convex: every quad on its own
+    ring = cells[[0, 0, 0, 1, 1, 2, 2, 2], [0, 1, 2, 0, 2, 0, 1, 2]]
+    assert _occluder_count(v, ring) == 8                               # a hole
+    two = np.concatenate([cells[:2, :2].reshape(-1, 4), cells[4:, 4:].reshape(-1, 4)])
+    assert _occluder_count(v, two) == 2                                # disjoint: two faces
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    occ = scene_occluders(Scene.from_polygons(v, tris.tolist()))
+    assert occ.n == 1 and occ.counts[0] == 4                           # collinear points dropped
+    # a T-junction: one big cell next to two small ones (the big one's edge is split on the other side):
+    # the big cell shares no whole edge and stays alone, the two small ones merge into one rectangle
+    vt = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 0.5, 0], [2, 1, 0], [1, 0.5, 0]],
+                  dtype=float)
+    qt = [[0, 1, 2, 3], [1, 4, 5, 7], [7, 5, 6, 2]]
+    assert _occluder_count(vt, qt) == 2
+
+
+def test_prepare_scene_progress_and_cancel():
+    scene, _, _ = box_with(BELOW)
+    calls = []
+    prepare_scene(scene, progress=lambda d, t: calls.append((d, t)))
+    total = len(PREPARATION_STAGES)
+    assert calls == [(i, total) for i in range(1, total + 1)]
+    fresh = Scene(scene.poly_vertices, scene.poly_counts, scene.poly_source, scene.poly_radiance, scene.n_input)
+    seen = []
+    with pytest.raises(Cancelled):
+        prepare_scene(fresh, progress=lambda d, t: seen.append(d), cancel=lambda: len(seen) >= 2)
+    assert seen == [1, 2]
+    assert getattr(fresh, "_occluders", None) is None                   # nothing half-built is kept
+    assert chunk.Cancelled is Cancelled
+
+
+def test_chunks_split_to_the_budget():
+    """A chunk whose surviving tiles hold more candidates than the budget is split (memory bound): the
+    same fragments, receiver by receiver."""
+    box = cornell_box(5)
+    scene = box.scene(radiance=box.emission + 0.1 * box.reflectivity)
+    p, n = receivers(box, scene, m=20, seed=7)
+    occ = scene_occluders(scene)
+    calls = []
+    real = chunk._split
+
+    def spy(*a, **k):
+        calls.append(len(a[1]))
+        return real(*a, **k)
+
+    for use_clear in (True, False):
+        whole = chunk.visible(scene, p, n, None, occ, None, use_clear=use_clear)
+        chunk._split = spy
+        try:
+            split = chunk.visible(scene, p, n, None, occ, None, use_clear=use_clear, budget=2000)
+        finally:
+            chunk._split = real
+        assert calls
+        for (frags, ff, _), ref in ((split, whole), (whole, whole)):
+            per_point = np.bincount(frags.point, weights=ff, minlength=len(p))
+            np.testing.assert_allclose(per_point, np.bincount(ref[0].point, weights=ref[1], minlength=len(p)),
+                                       rtol=0, atol=1e-15)
+        if use_clear:
+            assert np.array_equal(np.sort(split[2][0].point), np.sort(whole[2][0].point))
