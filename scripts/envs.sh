@@ -41,5 +41,5 @@ make_venv() {
     echo "$dir"
 }
 
-core_venv() { make_venv core "$PY311" numpy==2.4.6 "${TEST_TOOLS[@]}" matplotlib==3.11.2 openexr==3.5.3; }
+core_venv() { make_venv core "$PY311" numpy==2.4.6 "${TEST_TOOLS[@]}" matplotlib==3.11.2 openexr==3.5.3 dask==2026.8.0 distributed==2026.8.0; }
 core_np124_venv() { make_venv core-np124 "$PY311" numpy==1.24.4 pytest==9.2.0 hypothesis==6.170.15; }
