@@ -230,13 +230,20 @@ def _stage(progress, text):
 
 
 def _prepare(exported, points, normals, limit, progress, cancel):
-    """Build the core's per-scene structures (occluders, tiles: done once, lazily, by the first core
-    call) as a stage of its own, so the job says what it is doing before the first chunk: evaluate
-    one receiver and discard it (the structures do not depend on the receivers; results are the
-    same bit for bit)."""
+    """Build the core's per-scene structures (merged occluders, depth tables, tiles, solids, tile edges,
+    the hierarchy: :func:`core.prepare_scene`, cached on the scene) as a stage of its own, each of its
+    steps named as it ends, so the job says what it is doing before the first chunk (results are the
+    same bit for bit: the first core call would build the same structures)."""
+    from ..core import prepare_scene
+    from ..core.chunk import PREPARATION_STAGES
+
     sc = exported.scene
     _stage(progress, f"preparing the scene for the exact projection ({sc.n_polygons} convex polygons)")
-    _evaluate(exported, points[:1], normals[:1], None if limit is None else limit[:1], None, cancel)
+
+    def step(done, total):
+        _stage(progress, f"preparing the scene: {PREPARATION_STAGES[done - 1]} ready ({done}/{total})")
+
+    prepare_scene(sc, progress=step, cancel=cancel)
 
 
 def _evaluate(exported, points, normals, limit, progress, cancel, executor=None):
