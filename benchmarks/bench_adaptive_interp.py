@@ -177,9 +177,9 @@ def replay(scene, inputs, H_ref, G_ref, tol, variant, inner, edge, grad_min=0, c
                 ys, xs = np.mgrid[y0[c]:y1[c] + 1, x0[c]:x1[c] + 1]
                 ys, xs = ys.reshape(-1), xs.reshape(-1)
                 m = len(ys)
-                if use_h[k]:
+                if use_h[k] or variant == "biquadratic":
                     b, _, u, v = interp(np.full(m, x0[c]), np.full(m, x1[c]), np.full(m, y0[c]), np.full(m, y1[c]),
-                                        None, None, ys, xs, np.ones(m, bool))
+                                        None, None, ys, xs, np.full(m, bool(use_h[k])))
                     # quadratic Lagrange in u with nodes 0, .5, 1 (mid node weight 4u(1-u)); corner residual 0
                     lu0, lu1, lu2 = 2 * (u - .5) * (u - 1), 4 * u * (1 - u), 2 * u * (u - .5)
                     lv0, lv1, lv2 = 2 * (v - .5) * (v - 1), 4 * v * (1 - v), 2 * v * (v - .5)
@@ -222,6 +222,7 @@ def replay(scene, inputs, H_ref, G_ref, tol, variant, inner, edge, grad_min=0, c
 
 VARIANTS = {  # name: (variant, inner factor, edge factor, gradients only for cells >= this side)
     "bilinear 2/4 (current)": ("bilinear", 2.0, 4.0, 0),
+    "biquadratic 1/2": ("biquadratic", 1.0, 2.0, 0),
     "hermite 2/4": ("hermite", 2.0, 4.0, 0),
     "hermite 1/2": ("hermite", 1.0, 2.0, 0),
     "hermite 2/4, cells >= 8": ("hermite", 2.0, 4.0, 8),
