@@ -21,8 +21,11 @@ Passes (``update_render_passes`` / ``register_pass``, as Cycles' ``engine.py``):
 The window is cut into row bands (``BAND_PIXELS`` pixels each), rendered top to bottom: each band is
 one ``run_local_pass(region=band)`` on one export of the render depsgraph, written with
 ``begin_result``/``end_result`` so it appears in the Image Editor while the rest renders.
-``test_break()`` is the job's ``cancel`` callback (checked by the core every few hundred points):
-Esc stops within a fraction of a second and keeps the finished bands.
+``test_break()`` (latched: True from its first True on) is the job's ``cancel`` callback, polled by
+the job between chunks, by the core before each of its chunks and by the waiting threads of the worker
+pool every ``core.parallel.POLL_SECONDS``: the render ends within ~0.05 s of test_break's first True
+and keeps the finished bands (``tests/blender/test_engine.py``). How soon Blender makes test_break
+True after the Esc key press is Blender's (measured under Blender 3.4 in ``scripts/ui_session.py``).
 """
 
 from __future__ import annotations
