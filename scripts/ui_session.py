@@ -246,11 +246,24 @@ def session():
     xdotool("mousemove", cx, cy)
     t_esc = time.perf_counter()
     xdotool("key", "Escape")
-    stopped = yield from wait(lambda: not bpy.app.is_job_running('RENDER'), 60, 0.02)
-    # latency: Esc pressed -> test_break() seen by the render thread (engine.status["cancelled_at"]);
-    # job_seen: -> this main-thread timer saw the render job gone
-    log("f12_esc", started=ok, stopped=stopped, job_seen=time.perf_counter() - t_esc,
-        latency=engine.status.get("cancelled_at", float("nan")) - t_esc, **engine.status)
+    t_sent = time.perf_counter()  # xdotool has returned: the key event is in the X server
+    ticks = []  # this main-thread timer's ticks: gaps show whether the main thread (and the GIL) was free
+
+    def job_gone():
+        ticks.append(time.perf_counter())
+        return not bpy.app.is_job_running('RENDER')
+
+    stopped = yield from wait(job_gone, 60, 0.02)
+    gaps = np.diff([t_sent] + ticks)
+    # latency: Esc pressed -> the job had stopped for it (engine.status["cancelled_at"]);
+    # break_seen: -> test_break() first True (Blender delivering Esc); stop: test_break's first True ->
+    # the render result ended (ours); job_seen: -> this main-thread timer saw the render job gone
+    nan = float("nan")
+    st = engine.status
+    log("f12_esc", started=ok, stopped=stopped, job_seen=time.perf_counter() - t_esc, xdotool=t_sent - t_esc,
+        latency=st.get("cancelled_at", nan) - t_esc, break_seen=(st.get("break_at") or nan) - t_esc,
+        stop=st.get("ended_at", nan) - (st.get("break_at") or nan), timer_ticks=len(ticks),
+        timer_max_gap=float(gaps.max()) if len(gaps) else nan, **st)
     scene.render.engine = 'BLENDER_EEVEE'
     scene.render.resolution_x = scene.render.resolution_y = ARGS.resolution
 

@@ -198,3 +198,32 @@ def test_bands_cover_the_window_once(hlp):
         assert sorted(rows) == list(range(window[1], window[3])) and len(rows) == len(set(rows))
         assert all(b[0] == window[0] and b[2] == window[2] for b in bands)
         assert all((b[3] - b[1]) * (window[2] - window[0]) <= max(band, window[2] - window[0]) for b in bands)
+
+
+def test_esc_stops_within_a_second_and_keeps_the_bands(hlp, monkeypatch):
+    """test_break() turning True mid-render (Esc) ends the render in under a second, measured from the
+    first True to the end of the result, with the worker pool of the default settings; finished bands stay."""
+    import time
+
+    scene = build_box(48)
+    scene.render.engine = ENGINE_ID
+    engine = hlp["engine"]
+    monkeypatch.setattr(engine, "BAND_PIXELS", 48 * 12)  # 4 bands
+    calls = {"n": 0, "t0": None}
+
+    def test_break(_engine):
+        calls["n"] += 1
+        if engine.status.get("bands", 0) < 1:
+            return False
+        if calls["t0"] is None:  # the second band starts
+            calls["t0"] = time.perf_counter()
+        return time.perf_counter() - calls["t0"] > 0.15  # Esc inside the second band
+
+    monkeypatch.setattr(engine, "_break_requested", test_break)
+    bpy.ops.render.render()
+    status = engine.status
+    assert status["cancelled"] and status["break_at"] is not None, status
+    assert 1 <= status["bands"] < status["n_bands"], status
+    latency = status["ended_at"] - status["break_at"]
+    print(f"stop latency {latency:.3f} s")
+    assert latency < 1.0, status

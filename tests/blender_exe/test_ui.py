@@ -67,6 +67,7 @@ def test_real_window_panels_modal_job_esc_and_inspector(blender, xvfb_run, blend
     f12 = info["f12_esc"]  # F12, then Esc: test_break() ends the render early, the finished bands kept
     assert f12["started"] and f12["stopped"] and f12["cancelled"], f12
     assert f12["done"] < f12["total"] and f12["bands"] < f12["n_bands"], f12
+    assert f12["stop"] < 1.0, f12  # test_break()'s first True -> the render result ended
 
     ins = info["inspector"]
     assert ins["snapped_error"] < 0.02 and ins["normal"] == [0.0, 0.0, 1.0] and ins["point"][2] == 0.0, ins
