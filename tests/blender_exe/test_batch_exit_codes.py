@@ -98,14 +98,17 @@ def test_first_ctrl_c_stops_the_job_keeps_the_checkpoint_and_exits_130(blender, 
     """SIGINT to a real ``blender -b`` mid-job (3.4 alone would only print 'Sent an internal break
     event' and run to the end): stopped within a second, checkpoint kept, exit 130; --resume ends it."""
     out = str(tmp_path / "int.exr")
-    cmd = substitute(documented_34_command(), blender, sample_blend, out)
+    # one process, 3x3 samples per pixel: long enough that SIGINT lands mid-job (with the hierarchy and
+    # two workers the plain sample job ends in 0.5 s, before the signal)
+    job = ("--workers", "1", "--samples", "3")
+    cmd = substitute(documented_34_command(), blender, sample_blend, out, job)
     with subprocess.Popen(cmd, env=blender_env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                           text=True, bufsize=1) as proc:
         try:
             lines = []
             for line in proc.stderr:
                 lines.append(line)
-                if "% " in line and "points/s" in line:
+                if "% " in line and "points/s" in line and "100.0%" not in line:
                     break
             assert proc.poll() is None, "".join(lines)
             time.sleep(0.3)
@@ -129,7 +132,7 @@ def test_first_ctrl_c_stops_the_job_keeps_the_checkpoint_and_exits_130(blender, 
     assert "Sent an internal break event" not in err, err
     assert f"finished chunks are kept in {out}.checkpoint.npz" in err, err
     assert os.path.isfile(out + ".checkpoint.npz") and not os.path.exists(out)
-    resumed = run_blender(substitute(documented_34_command(), blender, sample_blend, out, ["--resume", "-q"]),
+    resumed = run_blender(substitute(documented_34_command(), blender, sample_blend, out, [*job, "--resume", "-q"]),
                           blender_env)
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert os.path.isfile(out) and not os.path.exists(out + ".checkpoint.npz")
