@@ -333,9 +333,9 @@ def cli_main(argv) -> int:
         if isinstance(exc, Cancelled):
             print(f"{prefix}cancelled; nothing was written", file=sys.stderr)
             return 130
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        kind = "" if isinstance(exc, (ValueError, OSError)) else f"{type(exc).__name__}: "
-        print(f"{prefix}error: {kind}{msg}", file=sys.stderr)
+        from .job import error_line
+
+        print(f"{prefix}{error_line(exc)}", file=sys.stderr)
         return 1
     print(f"{prefix}{report.summary()}")
     for path in report.outputs:

@@ -1141,6 +1141,15 @@ def _save_blend(path: str) -> str:
     return replace_atomically(path, save)
 
 
+def error_line(exc: BaseException) -> str:
+    """``error: ...``, the one stderr line of a failed command: the first line of the message, prefixed
+    by the exception's type unless it is a user error (ValueError, OSError)."""
+    text = str(exc).strip()
+    msg = text.splitlines()[0] if text else type(exc).__name__
+    kind = "" if isinstance(exc, (ValueError, OSError)) else f"{type(exc).__name__}: "
+    return f"error: {kind}{msg}"
+
+
 def cli_main(argv) -> int:
     """The ``blender --command hemisphere_local_pass`` program: returns the exit code; errors are
     one line on stderr (exit 1), Ctrl-C exits 130 after the finished chunks are saved."""
@@ -1203,9 +1212,7 @@ def cli_main(argv) -> int:
         if isinstance(exc, Cancelled):
             print(f"{prefix}cancelled; finished chunks are saved, rerun with --resume", file=sys.stderr)
             return 130
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        kind = "" if isinstance(exc, (ValueError, OSError)) else f"{type(exc).__name__}: "
-        print(f"{prefix}error: {kind}{msg}", file=sys.stderr)
+        print(f"{prefix}{error_line(exc)}", file=sys.stderr)
         return 1
     print(f"{prefix}{report.summary()}")
     for path in report.outputs:
