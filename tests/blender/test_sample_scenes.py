@@ -38,7 +38,7 @@ CASES = [
     ("cornell_box_9500", ["--subdivisions", "3", "--resolution", "8"], 9),
     ("furnished_room", ["--detail", "1", "--resolution", "8", "--tolerance", "0.05"], 12),
     ("numerical_traps", ["--cells", "2", "--resolution", "8", "--tolerance", "0.05"], 10),
-    ("cornell_box_100k", ["--subdivisions", "4", "--coarse", "2", "--resolution", "8"], 9),
+    ("cornell_box_100k", ["--subdivisions", "4", "--clusters", "20", "--resolution", "8"], 9),
 ]
 
 
