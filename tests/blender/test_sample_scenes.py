@@ -39,6 +39,7 @@ CASES = [
     ("furnished_room", ["--detail", "1", "--resolution", "8", "--tolerance", "0.05"], 12),
     ("numerical_traps", ["--cells", "2", "--resolution", "8", "--tolerance", "0.05"], 10),
     ("cornell_box_100k", ["--subdivisions", "4", "--clusters", "20", "--resolution", "8"], 9),
+    ("cornell_box_100k", ["--subdivisions", "4", "--clusters", "20", "--resolution", "8", "--in-blender"], 9),
 ]
 
 
