@@ -31,6 +31,9 @@ DEFAULT = "cornell_box,numerical_traps,furnished_room,cornell_box_9500,cornell_b
 #: resolution of each sample's picture when --resolution is not given
 RESOLUTION = {"cornell_box": 96, "numerical_traps": 48, "furnished_room": 48, "cornell_box_9500": 48,
               "cornell_box_100k": 32}
+#: samples whose local pass is computed by the core on the numeric box's float64 coordinates by default
+#: (on Blender's float32 copy the core's visibility is > 50x slower per point at 10^5 polygons)
+NUMERIC = {"cornell_box_100k"}
 #: the build arguments of each sample's picture (the 9,468-polygon box with the clustered first pass, as the
 #: flat one takes ~10-45 min here; docs/first-pass.md)
 ARGS = {"cornell_box": ["--subdivisions", "4"], "cornell_box_9500": ["--clusters", "300"], "furnished_room": [],
@@ -158,7 +161,8 @@ def main(argv=None):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.samples.split(","):
-            rows.append(one(name, args.resolution or RESOLUTION.get(name, 96), tmp, args.blend, args.numeric))
+            rows.append(one(name, args.resolution or RESOLUTION.get(name, 96), tmp, args.blend,
+                            args.numeric or name in NUMERIC))
             print(rows[-1], flush=True)
     table = os.path.join(GUIDE, "images.md")
     old = {}
@@ -172,7 +176,7 @@ def main(argv=None):
         if r["blend"]:
             cmd = cmd[:-1] + f" --blend {os.path.relpath(r['blend'], ROOT)}`"
         if r["numeric"]:
-            cmd = cmd[:-1] + " --numeric` (local pass by the core on float64 coordinates)"
+            cmd += " (local pass by the core on float64 coordinates)"
         if ARGS[r["name"]] and not r["blend"]:
             cmd += f" (builds with `{' '.join(ARGS[r['name']])}`)"
         built = "built before" if r["blend"] else f"{r['solve']:.0f} s"
