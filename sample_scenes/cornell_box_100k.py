@@ -18,7 +18,7 @@ polygons, in the same order, as the meshes built here — and the result is writ
 ``blender.first_pass.solve_first_pass`` instead (the operator's and the ``solve`` command's path): the
 same solver, but on Blender's float32 vertex coordinates, with which the core's visibility is far slower
 here (the rotated blocks' subdivided faces are no longer exactly planar: 8× per point at 9,468 polygons,
-more than 60× at 106,312; docs/first-pass.md). ``--subdivisions 4 --clusters 20`` builds a small version
+more than 50× at 106,312; docs/first-pass.md). ``--subdivisions 4 --clusters 20`` builds a small version
 (tests).
 """
 
