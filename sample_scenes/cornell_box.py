@@ -40,15 +40,19 @@ def _import_package():
         sys.path.insert(0, _ROOT)
 
 
-def first_pass(scene=None, *, tolerance=None, order=None, quiet=False):
+def first_pass(scene=None, *, tolerance=None, order=None, quiet=False, clusters=None):
     """Solve the first pass in this Blender session (``hemisphere_local_pass.blender.first_pass``): writes
     the FACE-domain ``radiosity`` attribute on every mesh; returns the report (progress on stderr)."""
     _import_package()
     from hemisphere_local_pass.blender.first_pass import StderrProgress, solve_first_pass
 
-    report = solve_first_pass(scene, tolerance=tolerance, order=order,
+    report = solve_first_pass(scene, tolerance=tolerance, order=order, clusters=clusters,
                               progress=None if quiet else StderrProgress(interval=5.0))
-    print(f"cornell_box: {report.summary()}", file=sys.stderr)
+    import resource
+
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB
+    print(f"cornell_box: {report.summary()}; job {report.seconds:.1f} s, peak RSS so far {rss:.0f} MB",
+          file=sys.stderr)
     return report
 
 
@@ -71,7 +75,7 @@ def _material(bpy, name, rho, emit):
 
 def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", reset: bool = True,
           radiosity=None, size: float = 1.0, block_detail: float = 1.0, tolerance=None, quiet: bool = False,
-          solve: bool = True, order=None):
+          solve: bool = True, order=None, clusters=None):
     """Build the Cornell box into the current Blender session; returns ``(scene, box, radiosity)``.
 
     Args:
@@ -84,6 +88,7 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
         tolerance: the first pass's stopping tolerance (default: ``first_pass.DEFAULT_TOLERANCE``).
         solve: run the first pass when ``radiosity`` is not given (False: geometry, materials and camera
             only, no attribute; the returned values are then None).
+        order, clusters: the first pass's quadrature order and shooting clusters (``solve_first_pass``).
     """
     import bpy
 
@@ -156,7 +161,7 @@ def build(subdivisions: int = 4, *, resolution: int = 64, domain: str = "FACE", 
                 node.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
     bpy.context.view_layer.update()
     if values is None and solve:
-        first_pass(scene, tolerance=tolerance, order=order, quiet=quiet)
+        first_pass(scene, tolerance=tolerance, order=order, quiet=quiet, clusters=clusters)
         values = np.zeros((box.n_polygons, 3))
         for part in dict.fromkeys(box.names):  # the solution in the box's polygon order
             mesh = bpy.data.objects[part.title().replace(" ", "")].data

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..first_pass import DEFAULT_TOLERANCE, FirstPassResult, ProgressiveSolver
+from ..first_pass import DEFAULT_TOLERANCE, FirstPassResult, make_solver
 
 __all__ = ["ORIGIN_ATTRIBUTE", "FirstPassJob", "FirstPassReport", "cli_main", "prepare", "solve_first_pass"]
 
@@ -208,12 +208,14 @@ def _write_face_colours(mesh, name: str, values: np.ndarray):
 
 
 def prepare(scene=None, *, attribute=None, reflectivity_attribute=None, emission_attribute=None, double_sided=None,
-            tolerance=None, order=None, view_layer=None, max_shots=None) -> FirstPassJob:
+            tolerance=None, order=None, view_layer=None, max_shots=None, clusters=None) -> FirstPassJob:
     """Phase 1: export ``scene`` (default: the context's) and build the solver; the scene is left as it was.
 
     Arguments left at ``None`` come from ``scene.hlp_settings`` (attribute names, double-sided) and
-    ``scene.hlp_first_pass`` (tolerance, quadrature order) when the extension is registered, else the
-    defaults (``radiosity``, ``reflectivity``, ``emission``, single-sided, ``DEFAULT_TOLERANCE``, order 2).
+    ``scene.hlp_first_pass`` (tolerance, quadrature order, clusters) when the extension is registered, else
+    the defaults (``radiosity``, ``reflectivity``, ``emission``, single-sided, ``DEFAULT_TOLERANCE``, order 2,
+    no clusters). ``clusters`` > 0 shoots reflected light from about that many clusters of polygons
+    (:class:`hemisphere_local_pass.first_pass.ClusteredSolver`; docs/first-pass.md, "Large scenes").
     """
     import bpy
 
@@ -235,6 +237,9 @@ def prepare(scene=None, *, attribute=None, reflectivity_attribute=None, emission
     double_sided = bool(pick(double_sided, settings, "double_sided", False))
     tolerance = float(pick(tolerance, fp, "tolerance", DEFAULT_TOLERANCE))
     order = int(pick(order, fp, "order", 2))
+    clusters = int(pick(clusters, fp, "clusters", 0))
+    if clusters < 0:
+        raise ValueError(f"clusters must be 0 (every polygon shoots) or positive, got {clusters}")
     if not attribute:
         raise ValueError("the radiosity attribute name is empty")
     if attribute == ORIGIN_ATTRIBUTE:
@@ -252,8 +257,8 @@ def prepare(scene=None, *, attribute=None, reflectivity_attribute=None, emission
                                 double_sided=double_sided)
     # the tags are gone: re-evaluate so that the depsgraph matches the file again
     view_layer.update()
-    solver = ProgressiveSolver(exported.scene, exported.reflectivity, exported.emission, tolerance=tolerance,
-                               order=order, double_sided=double_sided, max_shots=max_shots)
+    solver = make_solver(exported.scene, exported.reflectivity, exported.emission, tolerance=tolerance,
+                         order=order, double_sided=double_sided, max_shots=max_shots, clusters=clusters or None)
     return FirstPassJob(exported, solver, meshes, attribute, start)
 
 
@@ -300,6 +305,9 @@ def build_parser():
                         f"(default: scene setting or {DEFAULT_TOLERANCE:g})")
     p.add_argument("--order", type=int, choices=(1, 2), default=None,
                    help="quadrature on the shooting patches: 2 (default; 3-4 points) or 1 (centroid)")
+    p.add_argument("--clusters", type=int, default=None,
+                   help="shoot reflected light from about this many clusters of coplanar polygons (large scenes, "
+                        "docs/first-pass.md); 0: every polygon (default: scene setting or 0)")
     p.add_argument("--double-sided", action="store_true", default=None, help="patches emit and reflect on both sides")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
     return p
@@ -319,7 +327,7 @@ def cli_main(argv) -> int:
             raise ValueError(f"--output '{args.output}' is the file that was opened; it is not overwritten "
                              "(give another name)")
         report = solve_first_pass(attribute=args.attribute, tolerance=args.tolerance, order=args.order,
-                                  double_sided=args.double_sided,
+                                  double_sided=args.double_sided, clusters=args.clusters,
                                   progress=None if args.quiet else StderrProgress())
         from .job import _save_blend
 

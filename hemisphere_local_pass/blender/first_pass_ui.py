@@ -32,6 +32,13 @@ class HLP_PG_first_pass(bpy.types.PropertyGroup):
                     "1 = one point at the centroid (faster, less accurate)",
         default=2, min=1, max=2,
     )
+    clusters: IntProperty(
+        name="Clusters",
+        description="0: every polygon shoots its reflected light itself (exact patch rule, time ~ polygons²). "
+                    "N > 0: reflected light is shot from about N clusters of coplanar polygons of one material, "
+                    "one point each (large scenes; emitted light still from every polygon)",
+        default=0, min=0, soft_max=5000,
+    )
 
 
 def _message(ex) -> str:
@@ -139,6 +146,7 @@ class HLP_PT_first_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
         col = layout.column()
         col.prop(fp, "tolerance")
         col.prop(fp, "order")
+        col.prop(fp, "clusters")
         layout.operator(HLP_OT_solve_radiosity.bl_idname, icon='LIGHT_SUN')
 
 

@@ -38,7 +38,8 @@ import numpy as np
 from ..core import Cancelled, Scene, form_factors
 from .quadrature import PatchQuadrature, patch_quadrature
 
-__all__ = ["FirstPassResult", "ProgressiveSolver", "SolveProgress", "shooter_form_factors", "solve_radiosity"]
+__all__ = ["FirstPassResult", "ProgressiveSolver", "SolveProgress", "make_solver", "shooter_form_factors",
+           "solve_radiosity"]
 
 #: default stopping tolerance: unshot power at most this fraction of the emitted power
 DEFAULT_TOLERANCE = 1e-3
@@ -95,6 +96,9 @@ class FirstPassResult:
     seconds: float
     order: int
     dropped: dict = field(default_factory=dict)
+    clusters: int = 0               # shooting clusters of reflected light (0: every patch shoots; .clustered)
+    cluster_shots: int = 0
+    cluster_error: float = float("nan")  # estimated fraction of the clusters' power misdirected (4-point rule)
 
     @property
     def total_power(self) -> np.ndarray:
@@ -112,6 +116,10 @@ class FirstPassResult:
         e = max(float(self.emitted_power.sum()), 1e-300)
         q = "" if not np.isfinite(self.quadrature_error) else f", quadrature error est. {self.quadrature_error:.1e}"
         state = "converged" if self.converged else "NOT converged"
+        if self.clusters:
+            ce = f", est. {self.cluster_error:.1e}" if np.isfinite(self.cluster_error) else ""
+            q += (f"; reflected light shot from {self.clusters} clusters ({self.cluster_shots} of the shots{ce}), "
+                  "emitted light from the patches")
         return (f"first pass {state}: {len(self.areas)} patches, {self.shots} shots in {self.steps} steps, "
                 f"unshot {self.unshot_fraction:.2e} of emitted (tolerance {self.tolerance:.0e}); energy: "
                 f"absorbed {self.absorbed_power.sum() / e:.4f}, escaped {self.escaped_power.sum() / e:.4f}, "
@@ -239,12 +247,9 @@ class ProgressiveSolver:
         keep = max(1, int(np.searchsorted(np.cumsum(npts), self.max_points, side="right")))
         return np.sort(cand[:keep])
 
-    def _distribute(self, quad: PatchQuadrature, shooters: np.ndarray, shot: np.ndarray):
-        """Power received by every patch ``(n, 3)`` front/back-wise from shooters' unshot radiance ``shot``."""
-        idx = quad.of(shooters)
-        pts, nrm, w = quad.points[idx], quad.normals[idx], quad.weights[idx]
-        owner = np.searchsorted(shooters, quad.patch[idx])                    # (q,) row of shot
-        power = np.pi * w[:, None] * shot[owner]                              # (q, 3) W per side
+    def _factors(self, pts: np.ndarray, nrm: np.ndarray, power: np.ndarray):
+        """Exact factors ``(q', n)`` from shooting points ``pts (q, 3)`` with normals ``nrm`` and per-side power
+        ``power (q, 3)`` (W); both sides when double-sided (q' = 2q). Returns ``(f, front, power)``."""
         if self.double_sided:
             pts, nrm, power = np.concatenate([pts, pts]), np.concatenate([nrm, -nrm]), np.concatenate([power, power])
         f = form_factors(self.scene, pts, nrm)                                # (q, n) exact, occluded
@@ -254,15 +259,17 @@ class ProgressiveSolver:
             front = (pts @ self._rx_normal.T - self._rx_offset) > 0           # (q, n) lit on its front side
         return f, front, power
 
-    def step(self) -> int:
-        """Shoot one batch of patches; returns how many were shot (0 when nothing is left)."""
-        t0 = time.perf_counter()
-        shooters = self._shooters()
-        if not len(shooters):
-            return 0
-        shot = self.unshot[shooters].copy()                                   # (s, 3)
-        self.unshot[shooters] = 0.0
-        f, front, power = self._distribute(self.quad, shooters, shot)
+    def _distribute(self, quad: PatchQuadrature, shooters: np.ndarray, shot: np.ndarray):
+        """Power received by every patch ``(n, 3)`` front/back-wise from shooters' unshot radiance ``shot``."""
+        idx = quad.of(shooters)
+        pts, nrm, w = quad.points[idx], quad.normals[idx], quad.weights[idx]
+        owner = np.searchsorted(shooters, quad.patch[idx])                    # (q,) row of shot
+        power = np.pi * w[:, None] * shot[owner]                              # (q, 3) W per side
+        return self._factors(pts, nrm, power)
+
+    def _receive(self, f: np.ndarray, front, power: np.ndarray) -> np.ndarray:
+        """Book the power ``power (q, 3)`` shot along ``f (q, n)``: escaped, back faces, absorbed, and the
+        reflected part added to the radiance and to the unshot radiance. Returns the received ``(n, 3)`` W."""
         sent = power.sum(axis=0)                                              # (3,)
         seen = f.sum(axis=1)                                                  # (q,)
         self.escaped += (1.0 - np.minimum(seen, 1.0)) @ power
@@ -278,15 +285,31 @@ class ProgressiveSolver:
         gain = np.divide(reflected, area[:, None], out=np.zeros_like(reflected), where=area[:, None] > 0)
         self.radiance += gain
         self.unshot += gain
-        if self.check is not None:
-            f1, front1, power1 = self._distribute(self.check, shooters, shot)
-            rec1 = (np.where(front1, f1, 0.0) if front1 is not None else f1).T @ power1
-            self._misdirected += 0.5 * float(np.abs(received - rec1).sum())
         self._shot_power += float(sent.sum())
+        return received
+
+    def step(self) -> int:
+        """Shoot one batch of patches; returns how many were shot (0 when nothing is left)."""
+        t0 = time.perf_counter()
+        shooters = self._shooters()
+        if not len(shooters):
+            return 0
+        shot = self.unshot[shooters].copy()                                   # (s, 3)
+        self.unshot[shooters] = 0.0
+        self._shoot_patches(shooters, shot)
         self.shots += len(shooters)
         self.steps += 1
         self._elapsed += time.perf_counter() - t0
         return len(shooters)
+
+    def _shoot_patches(self, shooters: np.ndarray, shot: np.ndarray):
+        """Shoot the unshot radiance ``shot (s, 3)`` of the patches ``shooters`` with the patch rule."""
+        f, front, power = self._distribute(self.quad, shooters, shot)
+        received = self._receive(f, front, power)
+        if self.check is not None:
+            f1, front1, power1 = self._distribute(self.check, shooters, shot)
+            rec1 = (np.where(front1, f1, 0.0) if front1 is not None else f1).T @ power1
+            self._misdirected += 0.5 * float(np.abs(received - rec1).sum())
 
     def result(self) -> FirstPassResult:
         q = self._misdirected / self._shot_power if self.check is not None and self._shot_power > 0 else (
@@ -314,10 +337,21 @@ class ProgressiveSolver:
         return self.result()
 
 
+def make_solver(scene: Scene, reflectivity, emission, *, clusters: int | None = None, **kwargs) -> ProgressiveSolver:
+    """:class:`ProgressiveSolver`, or with ``clusters`` (> 0) the :class:`~.clustered.ClusteredSolver` that shoots
+    reflected light from about that many clusters of patches (large scenes: docs/first-pass.md)."""
+    if clusters:
+        from .clustered import ClusteredSolver
+
+        return ClusteredSolver(scene, reflectivity, emission, clusters=int(clusters), **kwargs)
+    return ProgressiveSolver(scene, reflectivity, emission, **kwargs)
+
+
 def solve_radiosity(scene: Scene, reflectivity, emission, *, progress=None, cancel=None, **kwargs) -> FirstPassResult:
     """Solve diffuse radiosity on ``scene``'s input polygons (see :class:`ProgressiveSolver` for the
-    arguments); returns :class:`FirstPassResult` (``.radiance (n, 3)``, the report in ``.summary()``)."""
-    return ProgressiveSolver(scene, reflectivity, emission, **kwargs).run(progress=progress, cancel=cancel)
+    arguments, and ``clusters`` in :func:`make_solver`); returns :class:`FirstPassResult` (``.radiance (n, 3)``,
+    the report in ``.summary()``)."""
+    return make_solver(scene, reflectivity, emission, **kwargs).run(progress=progress, cancel=cancel)
 
 
 def shooter_form_factors(scene: Scene, shooter: int, *, order: int = 2, double_sided: bool | None = None,
