@@ -34,8 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .clear_tiles import SIDE_MARGIN
 from .csr import expand
 from .rowops import unique_rows
+from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["FarFieldStats", "NodeEdges", "clear_node_test", "far_field_irradiance", "node_edges", "proxy_scene"]
@@ -255,8 +257,6 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en):
     plane by more than :data:`NODE_SIDE_FACTOR` times the tile test's margin, the tiles' plane spread
     (``dn``, ``d0``) included.
     """
-    from .clear_tiles import SIDE_MARGIN
-
     ok = ne.usable[en]
     corners = h.corners[en] - points[ep][:, None, :]
     height = np.matmul(corners, normals[ep][:, :, None])[..., 0].min(axis=1)
@@ -339,12 +339,17 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         ratio = np.divide(np.arctan2(sn, dd), sn, out=np.zeros_like(sn), where=sn > 0.0)
         nx, ny, nz = (x[p] for x in nx_all)
         t = (cx * nx + cy * ny + cz * nz) * ratio
-        wt = (side[b] * t)[:, None] * ne.weight[pos]
-        for c in range(3):
-            out[:, c] += np.bincount(p, weights=wt[:, c], minlength=m)
-            mag[:, c] += np.bincount(p, weights=np.abs(wt[:, c]), minlength=m)
-            if has_v:
-                vsum[:, c] += np.bincount(p, weights=wt[:, 3 + c], minlength=m)
+        w = ne.weight[pos]
+        # per pair (its edges are consecutive), then per receiver
+        run = np.flatnonzero(cnt > 0)
+        first = (np.cumsum(cnt) - cnt)[run]
+        per = np.add.reduceat(t[:, None] * w, first, axis=0) * side[s:e][run, None]            # (P', 6)
+        per_mag = np.add.reduceat(np.abs(t)[:, None] * np.abs(w[:, :3]), first, axis=0)
+        pp = point[s:e][run]
+        np.add.at(out, pp, per[:, :3])
+        np.add.at(mag, pp, per_mag)
+        if has_v:
+            np.add.at(vsum, pp, per[:, 3:])
     # H = π × side/2π × Σ W t
     out *= 0.5
     # the proxies' radiance bound: π Σ ½ range F over clear proxies, = ½ Σ side V t (>= 0 exactly)
@@ -352,48 +357,63 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     return out, bound, np.bincount(point, weights=skip, minlength=m), np.bincount(point, weights=n_run, minlength=m)
 
 
+def _face_ranges(scene, occ):
+    """Per merged face: ``lo, hi (n_o, 3)`` its members' smallest and largest radiance, ``size (n_o,)`` its
+    members, ``dirty (n_o,)`` a member has a copy or a coplanar overlap (cached on the scene)."""
+    cached = getattr(scene, "_face_ranges", None)
+    if cached is not None and cached[0] is occ:
+        return cached[1]
+    mem = occ.members
+    n, n_o = scene.n_polygons, occ.n
+    copies = np.bincount(scene.dup_rep, minlength=n)
+    clean = (scene.dup_rep == np.arange(n)) & (copies == 1) & (np.diff(occ.coplanar_ptr) == 0)
+    sel = np.flatnonzero(mem >= 0)
+    order = sel[np.argsort(mem[sel], kind="stable")]
+    face = mem[order]
+    size = np.bincount(face, minlength=n_o)
+    lo = np.full((n_o, 3), np.inf)
+    hi = np.full((n_o, 3), -np.inf)
+    if len(order):
+        starts = np.flatnonzero(np.r_[True, face[1:] != face[:-1]])
+        rad = scene.poly_radiance[order]
+        lo[face[starts]] = np.minimum.reduceat(rad, starts, axis=0)
+        hi[face[starts]] = np.maximum.reduceat(rad, starts, axis=0)
+    dirty = np.bincount(face, weights=~clean[order], minlength=n_o) > 0
+    out = (lo, hi, size, dirty)
+    scene._face_ranges = (occ, out)
+    return out
+
+
 def proxy_scene(scene, occ, tolerance):
     """The scene with every nearly uniform merged face replaced by one polygon, and its radiance bound.
 
     A merged face (:func:`.culling.build_occluders`: coplanar, edge-connected convex polygons that tile
-    one convex polygon exactly) whose members' radiance spans ``range_c <= tolerance_c / π`` in every
+    one convex polygon exactly) whose members' radiance spans ``range_c <= 2 tolerance_c / π`` in every
     channel, with no duplicate or coplanar-overlapping member, is replaced by that convex polygon with
     the mid-range radiance. The occluding geometry is the same (the union of the members is the
     polygon), so ``|H − H_proxy| <= π Σ_f ½ range_f F_f`` with ``F_f`` the proxy's visible form factor;
     the visible parts of different faces do not overlap on the hemisphere (``Σ_f F_f <= 1``), so this
-    is at most ``tolerance / 2``: the caller computes it exactly per receiver from the proxies' form
-    factors and half ranges.
+    is at most ``tolerance``: the caller computes it per receiver from the proxies' visible form factors
+    and half ranges (:func:`.local_pass.irradiance` gives the proxies half its tolerance, the edges left
+    out the other half).
 
     Returns ``(proxy scene, half_range (n_p, 3) or None)`` (``scene`` itself and None when no face
     qualifies); cached on ``scene`` for the set of qualifying faces. The proxy scene has the same
     ``double_sided``; its polygons are the kept convex polygons of ``scene`` and the proxies.
     """
-    from .scene import Scene
-
     if scene.linear or occ.n == 0:
         return scene, None
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
-    mem = occ.members
-    n = scene.n_polygons
-    copies = np.bincount(scene.dup_rep, minlength=n)
-    clean = (scene.dup_rep == np.arange(n)) & (copies == 1) & (np.diff(occ.coplanar_ptr) == 0)
-    has = mem >= 0
-    face = np.where(has, mem, 0)
-    n_o = occ.n
-    lo = np.full((n_o, 3), np.inf)
-    hi = np.full((n_o, 3), -np.inf)
-    np.minimum.at(lo, face[has], scene.poly_radiance[has])
-    np.maximum.at(hi, face[has], scene.poly_radiance[has])
-    size = np.bincount(face[has], minlength=n_o)
-    dirty = np.bincount(face[has], weights=~clean[has], minlength=n_o) > 0
-    ok = (size >= 2) & ~dirty & ((hi - lo) * np.pi <= tol[None, :]).all(axis=1) & np.isfinite(hi).all(axis=1)
+    lo, hi, size, dirty = _face_ranges(scene, occ)
+    ok = (size >= 2) & ~dirty & ((hi - lo) * (0.5 * np.pi) <= tol[None, :]).all(axis=1) & np.isfinite(hi).all(axis=1)
     if not ok.any():
         return scene, None
     key = ok.tobytes()
     cached = getattr(scene, "_proxy", None)
     if cached is not None and cached[0] is occ and cached[1] == key:
         return cached[2], cached[3]
-    keep = np.flatnonzero(~(has & ok[face]))            # polygons not replaced (duplicates included)
+    has = occ.members >= 0
+    keep = np.flatnonzero(~(has & ok[np.where(has, occ.members, 0)]))   # polygons not replaced (duplicates too)
     faces = np.flatnonzero(ok)
     kc = scene.poly_counts[keep]
     fc = occ.counts[faces]
