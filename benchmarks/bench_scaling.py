@@ -165,6 +165,8 @@ def main(argv=None):
     ap.add_argument("--tolerance", type=float, default=1e-4,
                     help="far-field tolerance relative to the mean irradiance (0: exact only)")
     ap.add_argument("--worker-points", type=int, default=1024, help="receivers of the all-workers timing")
+    ap.add_argument("--ratio-pair", default="35,160",
+                    help="two visible subdivisions timed interleaved, exact and with the tolerance ('' for none)")
     ap.add_argument("--out", default=str(DOCS / "bench_scaling"), help="output prefix ('' for none)")
     args = ap.parse_args(argv)
     core = importlib.import_module("hemisphere_local_pass.core")
@@ -250,7 +252,8 @@ def main(argv=None):
              f"Load average at the end: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} cores.\n",
              f"Command: `OMP_NUM_THREADS=1 python benchmarks/bench_scaling.py --points {args.points} "
              f"--visible {args.visible} --hidden {args.hidden} --below {args.below} --under {args.under} "
-             f"--repeat {args.repeat} --tolerance {args.tolerance:g} --worker-points {args.worker_points}"
+             f"--repeat {args.repeat} --tolerance {args.tolerance:g} --worker-points {args.worker_points} "
+             f"--ratio-pair {args.ratio_pair or chr(39) * 2}"
              + (f" --out {args.out}" if args.out != str(DOCS / "bench_scaling") else "")
              + (f" --baseline {args.baseline} --baseline-max {args.baseline_max} --baseline-visible-max "
                 f"{args.baseline_visible_max}" if args.baseline else "") + "`\n",
@@ -293,6 +296,8 @@ def main(argv=None):
                       f"{mid['polygons']:,}-polygon box: {big['tol_1w_ms'] / mid['tol_1w_ms']:.1f}× (both with the "
                       f"tolerance), {big['tol_1w_ms'] / mid['exact_1w_ms']:.1f}× (that box exact); exact over "
                       f"exact: {big['exact_1w_ms'] / mid['exact_1w_ms']:.1f}×."]
+    if args.ratio_pair and args.tolerance > 0:
+        lines += ratio_pair(core, [int(x) for x in args.ratio_pair.split(",")], args)
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:
@@ -300,6 +305,38 @@ def main(argv=None):
         Path(args.out + ".json").write_text(json.dumps(results, indent=1))
         plot(results, args.out + ".png")
         log(f"wrote {args.out}.md, .json, .png")
+
+
+def ratio_pair(core, subdivisions, args):
+    """The goal of issue 10 part 4 measured side by side: two visible boxes, exact and with the tolerance,
+    calls interleaved in one process (``workers=1``); returns markdown lines."""
+    cases = []
+    for sub in subdivisions:
+        verts, quads, rad, box = box_arrays(sub)
+        scene = scene_of(core, verts, quads, rad)
+        p, nrm = receivers(box, scene, args.points)
+        core.prepare_scene(scene)
+        exact = core.irradiance(scene, p, nrm, workers=1)
+        tol = args.tolerance * exact.mean(axis=0)
+        core.irradiance(scene, p, nrm, workers=1, tolerance=tol)        # the proxy scene, once
+        cases.append((scene, p, nrm, tol))
+    best = {}
+    for _ in range(max(args.repeat, 3)):
+        for i, (scene, p, nrm, tol) in enumerate(cases):
+            for kind, kw in (("exact", {}), ("tol", {"tolerance": tol})):
+                t = per_point(_call(core.irradiance, workers=1, **kw), scene, p, nrm, repeat=1)[0]
+                best[i, kind] = min(best.get((i, kind), np.inf), t)
+    (a, b) = (cases[0][0].n_polygons, cases[1][0].n_polygons)
+    ms = {k: 1e3 * v for k, v in best.items()}
+    log(f"ratio pair {a} / {b}: {ms}")
+    return ["", f"### Side by side: {a:,} and {b:,} polygons (interleaved, one process, fastest of "
+            f"{max(args.repeat, 3)}, {args.points} points each)\n",
+            "| polygons | exact ms/pt | tolerance ms/pt |", "|---|---|---|",
+            f"| {a:,} | {ms[0, 'exact']:.3f} | {ms[0, 'tol']:.3f} |",
+            f"| {b:,} | {ms[1, 'exact']:.3f} | {ms[1, 'tol']:.3f} |", "",
+            f"{b:,} with the tolerance / {a:,} with the tolerance: **{ms[1, 'tol'] / ms[0, 'tol']:.1f}×**; "
+            f"/ {a:,} exact: **{ms[1, 'tol'] / ms[0, 'exact']:.1f}×**; exact / exact: "
+            f"{ms[1, 'exact'] / ms[0, 'exact']:.1f}×."]
 
 
 def plot(results, path):

@@ -189,3 +189,16 @@ def test_radiance_returns_the_bound_on_l_and_bad_tolerances_are_refused():
 
 def test_the_rounding_allowance_is_small():
     assert ROUNDING < 1e-9
+
+
+def test_bit_identical_on_workers():
+    """With a tolerance the chunks are still the job's: 1 and 2 workers give the same bits and bounds."""
+    rng = np.random.default_rng(10)
+    scene = BOX.scene(radiance=_spiked(_chequer(1e-6)))
+    pts, nrm = _receivers(rng, 160)
+    tol = 1e-5
+    h1, s1 = irradiance(scene, pts, nrm, workers=1, budget=2**15, tolerance=tol, return_stats=True)
+    h2, s2 = irradiance(scene, pts, nrm, workers=2, budget=2**15, tolerance=tol, return_stats=True)
+    assert h1.tobytes() == h2.tobytes()
+    assert s1.error_bound.tobytes() == s2.error_bound.tobytes()
+    assert s1.edges_skipped.sum() > 0
