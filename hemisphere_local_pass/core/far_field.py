@@ -1,7 +1,13 @@
-"""Error-bounded far field: clear hierarchy nodes summed over their welded edges, negligible edges bounded.
+"""Error-bounded far field: uniform faces as one polygon, clear tree nodes summed whole, weak edges bounded.
 
 Only with a user ``tolerance > 0`` (absolute, W m^-2, per channel; :func:`.local_pass.irradiance`); at
-``tolerance = 0`` nothing here runs and the result is the exact path's, bit for bit.
+``tolerance = 0`` nothing here runs and the result is the exact path's, bit for bit. Half the tolerance
+goes to the proxies, half to the edges left out; the bound actually used is returned per receiver
+(:class:`FarFieldStats`).
+
+**Uniform faces** (:func:`proxy_scene`). A merged face whose members' radiance range is small is
+replaced by its one convex polygon with the mid-range radiance: same occluding geometry, error at most
+``π Σ_f ½ range_f F_f`` (the proxies' visible form factors, computed with the rest).
 
 **Clear nodes.** A clear tile (:mod:`.clear_tiles`) contributes ``Σ_i L_i F_i = side/2π · Σ_e W_e t_e``
 over its welded edges, ``W_e = Σ_i σ_ei L_i``. The same holds for any set of coplanar polygons that are
@@ -19,9 +25,9 @@ term obeys ``|t_e| <= θ_e <= len_e / d`` (θ_e the angle the edge subtends at P
 the node's bounding sphere), so leaving out a set S of edges changes ``H = π Σ L_i F_i = ½ Σ_e W_e t_e``
 by at most ``½ Σ_{e∈S} |W_e,c| len_e / d`` in channel c. Each node's list is sorted by ``max_c |W_e,c|
 len_e``; a (receiver, node) pair may leave out the longest prefix of its list whose bound fits its share
-of the tolerance (the receiver's tolerance split evenly over its pairs), and the bound it used is
-returned. A bright patch among dim ones, a chequerboard, or a receiver close to the node gets no skip:
-its bound would not fit.
+of the tolerance (the edges' half of the receiver's tolerance split evenly over its clear pairs), and
+the bound it used is returned. A bright patch among dim ones, a chequerboard, or a receiver close to
+the node gets no skip: its bound would not fit.
 
 The returned bound per receiver and channel is the sum of the pairs' bounds plus a rounding allowance
 (:data:`ROUNDING`, relative to ``½ Σ |W_e,c t_e|`` of the terms summed): the welded sum adds the same
