@@ -18,8 +18,17 @@ the absolute times less so).
 With ``--baseline REV`` the same is measured for the core at git revision REV (exported to a
 temporary directory and imported side by side) on the scenes up to ``--baseline-max`` polygons.
 
+With ``--tolerance T`` (default 1e-4; 0: off) the new code is also timed with ``irradiance(...,
+tolerance=T × mean H)`` (the error-bounded far field, :mod:`hemisphere_local_pass.core.far_field`; mean
+H of the exact result per channel), in one process (``workers=1``, interleaved with the exact call on
+the same points) and on every core (a kept ``WorkerPool`` as ``executor``, on ``--worker-points`` points:
+a call with fewer than 4 chunks of 192 points would stay in one process); the largest measured error
+and the largest returned bound are given as fractions of the tolerance, and the first call's extra
+preparation (the proxy scene) apart.
+
     OMP_NUM_THREADS=1 python benchmarks/bench_scaling.py [--points 256] [--visible 5,20,35,80,160]
         [--hidden 10000,100000,1000000] [--below 300] [--under 448] [--baseline aa9e604] [--baseline-max 100000]
+        [--tolerance 1e-4] [--worker-points 1024] [--out docs/bench_scaling]
 
 Writes ``docs/bench_scaling.md``, ``.json`` and ``.png`` (log-log: time against polygons).
 """
@@ -29,6 +38,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -114,6 +124,11 @@ def prepare(core, scene):
     return time.perf_counter() - t
 
 
+def _call(fn, **kw):
+    """``fn`` with keyword arguments bound (for :func:`per_point`)."""
+    return lambda *a: fn(*a, **kw)
+
+
 def per_point(fn, *args, repeat=3):
     """Fastest of ``repeat`` calls, seconds per point, and the last result."""
     best, out = np.inf, None
@@ -147,6 +162,11 @@ def main(argv=None):
     ap.add_argument("--baseline-visible-max", type=int, default=10000,
                     help="largest visible scene for the baseline (its preparation grows faster than n log n)")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--tolerance", type=float, default=1e-4,
+                    help="far-field tolerance relative to the mean irradiance (0: exact only)")
+    ap.add_argument("--worker-points", type=int, default=1024, help="receivers of the all-workers timing")
+    ap.add_argument("--ratio-pair", default="35,160",
+                    help="two visible subdivisions timed interleaved, exact and with the tolerance ('' for none)")
     ap.add_argument("--out", default=str(DOCS / "bench_scaling"), help="output prefix ('' for none)")
     args = ap.parse_args(argv)
     core = importlib.import_module("hemisphere_local_pass.core")
@@ -171,6 +191,9 @@ def main(argv=None):
         if mod is not None:
             prepare(mod, bare[label])
     results = []
+    from hemisphere_local_pass.core.parallel import WorkerPool
+
+    pool = WorkerPool() if args.tolerance > 0 else None
     for series, param, (verts, quads, rad, box) in cases:
         n = len(quads)
         for label, mod in (("new", core), ("baseline", base)):
@@ -186,11 +209,37 @@ def main(argv=None):
             tracemalloc.stop()
             log(f"  preparation {t_prep:.2f} s, peak {prep_mb:.0f} MB")
             # interleaved with the bare box, so that the ratio shares the machine's phase
-            t_irr, t_box = [], []
+            t_irr, t_box, t_one, t_tol = [], [], [], []
+            tol = None
+            exact = None
+            tol_extra = {}
+            if label == "new" and args.tolerance > 0:
+                exact = mod.irradiance(scene, p, nrm, workers=1)
+                tol = args.tolerance * exact.mean(axis=0)
+                t = time.perf_counter()
+                mod.irradiance(scene, p[:1], nrm[:1], workers=1, tolerance=tol)   # builds the proxy scene
+                tol_extra["prep_tol_s"] = time.perf_counter() - t
             for _ in range(args.repeat):
                 t_irr.append(per_point(mod.irradiance, scene, p, nrm, repeat=1)[0])
                 t_box.append(per_point(mod.irradiance, bare[label], p, nrm, repeat=1)[0]
                              if series != "visible" else np.nan)
+                if tol is not None:
+                    t_one.append(per_point(_call(mod.irradiance, workers=1), scene, p, nrm, repeat=1)[0])
+                    t_tol.append(per_point(_call(mod.irradiance, workers=1, tolerance=tol), scene, p, nrm,
+                                           repeat=1)[0])
+            if tol is not None:
+                h_tol, st = mod.irradiance(scene, p, nrm, workers=1, tolerance=tol, return_stats=True)
+                err = np.abs(h_tol - exact)
+                assert (err <= st.error_bound).all(), "measured error above the returned bound"
+                pw, nw = receivers(box, scene, args.worker_points, seed=1)
+                # a kept pool of every core (the scene reaches each worker once, on the first call)
+                t_all = per_point(_call(mod.irradiance, tolerance=tol, executor=pool), scene, pw, nw,
+                                  repeat=args.repeat + 1)[0]
+                tol_extra.update({"exact_1w_ms": 1e3 * min(t_one), "tol_1w_ms": 1e3 * min(t_tol),
+                                  "tol_all_ms": 1e3 * t_all, "err_over_tol": float((err / tol).max()),
+                                  "bound_over_tol": float((st.error_bound / tol).max()),
+                                  "edges_summed": float(st.edges_summed.mean()),
+                                  "clear_nodes": float(st.clear_nodes.mean())})
             mf = min(args.ff_points, len(p))
             t_ff = per_point(mod.form_factors, scene, p[:mf], nrm[:mf], repeat=args.repeat)[0] if n <= 200_000 \
                 else np.nan
@@ -199,14 +248,20 @@ def main(argv=None):
                    "prep_s": t_prep, "irradiance_ms": 1e3 * min(t_irr), "form_factors_ms": 1e3 * t_ff,
                    "box_ms": 1e3 * np.nanmin(t_box) if series != "visible" else None,
                    "ratio_to_box": (min(t_irr) / np.nanmin(t_box)) if series != "visible" else None,
-                   "peak_irradiance_mb": mem, "peak_prep_mb": prep_mb}
+                   "peak_irradiance_mb": mem, "peak_prep_mb": prep_mb, **tol_extra}
             log(f"  {row}")
             results.append(row)
             del scene
+    if pool is not None:
+        pool.shutdown()
     lines = ["# Scaling of the exact local pass with the polygon count (issue 10)\n",
              f"Machine: {machine()}\n",
+             f"Load average at the end: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} cores.\n",
              f"Command: `OMP_NUM_THREADS=1 python benchmarks/bench_scaling.py --points {args.points} "
-             f"--visible {args.visible} --hidden {args.hidden} --below {args.below} --under {args.under}"
+             f"--visible {args.visible} --hidden {args.hidden} --below {args.below} --under {args.under} "
+             f"--repeat {args.repeat} --tolerance {args.tolerance:g} --worker-points {args.worker_points} "
+             f"--ratio-pair {args.ratio_pair or chr(39) * 2}"
+             + (f" --out {args.out}" if args.out != str(DOCS / "bench_scaling") else "")
              + (f" --baseline {args.baseline} --baseline-max {args.baseline_max} --baseline-visible-max "
                 f"{args.baseline_visible_max}" if args.baseline else "") + "`\n",
              f"Per-point times: fastest of {args.repeat} runs; irradiance over {args.points} camera-visible points, "
@@ -224,6 +279,33 @@ def main(argv=None):
         lines.append(f"| {r['series']} | {r['polygons']:,} | {r['code']} | {r['prep_s']:.2f} | "
                      f"{r['irradiance_ms']:.3f} | {ratio} | {ff} | {r['peak_prep_mb']:.0f} | "
                      f"{r['peak_irradiance_mb']:.0f} |")
+    tol_rows = [r for r in results if "tol_1w_ms" in r]
+    if tol_rows:
+        lines += ["", f"### Tolerance {args.tolerance:g} of the mean irradiance (error-bounded far field)\n",
+                  "Per-point irradiance, ms: *exact* and *tolerance* in one process (`workers=1`, fastest of "
+                  f"{args.repeat}, interleaved on the same points), *tolerance, all workers* on "
+                  f"{args.worker_points} other points (a kept `core.parallel.WorkerPool` of every core as `executor`, "
+                  "fastest call after the first, which ships the scene). *error / tol* and *bound / tol*: the "
+                  "largest measured |H_tol − H_exact| and the largest returned bound per receiver and channel, "
+                  "over the tolerance. *extra prep*: the first tolerance call's proxy scene.\n",
+                  "| series | polygons | exact ms/pt | tolerance ms/pt | speed-up | tolerance, all workers ms/pt | "
+                  "error / tol | bound / tol | edges summed /pt | clear nodes /pt | extra prep s |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for r in tol_rows:
+            lines.append(f"| {r['series']} | {r['polygons']:,} | {r['exact_1w_ms']:.3f} | {r['tol_1w_ms']:.3f} | "
+                         f"{r['exact_1w_ms'] / r['tol_1w_ms']:.1f}× | {r['tol_all_ms']:.3f} | "
+                         f"{r['err_over_tol']:.1e} | {r['bound_over_tol']:.2f} | {r['edges_summed']:.0f} | "
+                         f"{r['clear_nodes']:.0f} | {r['prep_tol_s']:.2f} |")
+        vis = sorted((r for r in tol_rows if r["series"] == "visible"), key=lambda r: r["polygons"])
+        ref = [r for r in vis if 5000 <= r["polygons"] <= 20000]
+        if vis and ref:
+            big, mid = vis[-1], ref[0]
+            lines += ["", f"Largest visible box ({big['polygons']:,} polygons) with the tolerance over the "
+                      f"{mid['polygons']:,}-polygon box: {big['tol_1w_ms'] / mid['tol_1w_ms']:.1f}× (both with the "
+                      f"tolerance), {big['tol_1w_ms'] / mid['exact_1w_ms']:.1f}× (that box exact); exact over "
+                      f"exact: {big['exact_1w_ms'] / mid['exact_1w_ms']:.1f}×."]
+    if args.ratio_pair and args.tolerance > 0:
+        lines += ratio_pair(core, [int(x) for x in args.ratio_pair.split(",")], args)
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:
@@ -231,6 +313,38 @@ def main(argv=None):
         Path(args.out + ".json").write_text(json.dumps(results, indent=1))
         plot(results, args.out + ".png")
         log(f"wrote {args.out}.md, .json, .png")
+
+
+def ratio_pair(core, subdivisions, args):
+    """The goal of issue 10 part 4 measured side by side: two visible boxes, exact and with the tolerance,
+    calls interleaved in one process (``workers=1``); returns markdown lines."""
+    cases = []
+    for sub in subdivisions:
+        verts, quads, rad, box = box_arrays(sub)
+        scene = scene_of(core, verts, quads, rad)
+        p, nrm = receivers(box, scene, args.points)
+        core.prepare_scene(scene)
+        exact = core.irradiance(scene, p, nrm, workers=1)
+        tol = args.tolerance * exact.mean(axis=0)
+        core.irradiance(scene, p, nrm, workers=1, tolerance=tol)        # the proxy scene, once
+        cases.append((scene, p, nrm, tol))
+    best = {}
+    for _ in range(max(args.repeat, 3)):
+        for i, (scene, p, nrm, tol) in enumerate(cases):
+            for kind, kw in (("exact", {}), ("tol", {"tolerance": tol})):
+                t = per_point(_call(core.irradiance, workers=1, **kw), scene, p, nrm, repeat=1)[0]
+                best[i, kind] = min(best.get((i, kind), np.inf), t)
+    (a, b) = (cases[0][0].n_polygons, cases[1][0].n_polygons)
+    ms = {k: 1e3 * v for k, v in best.items()}
+    log(f"ratio pair {a} / {b}: {ms}")
+    return ["", f"### Side by side: {a:,} and {b:,} polygons (interleaved, one process, fastest of "
+            f"{max(args.repeat, 3)}, {args.points} points each)\n",
+            "| polygons | exact ms/pt | tolerance ms/pt |", "|---|---|---|",
+            f"| {a:,} | {ms[0, 'exact']:.3f} | {ms[0, 'tol']:.3f} |",
+            f"| {b:,} | {ms[1, 'exact']:.3f} | {ms[1, 'tol']:.3f} |", "",
+            f"{b:,} with the tolerance / {a:,} with the tolerance: **{ms[1, 'tol'] / ms[0, 'tol']:.1f}×**; "
+            f"/ {a:,} exact: **{ms[1, 'tol'] / ms[0, 'exact']:.1f}×**; exact / exact: "
+            f"{ms[1, 'exact'] / ms[0, 'exact']:.1f}×."]
 
 
 def plot(results, path):

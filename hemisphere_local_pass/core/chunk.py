@@ -24,6 +24,7 @@ import numpy as np
 
 from .clear_tiles import ClearPairs, TileEdges, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
+from .far_field import NodeEdges, clear_node_test, node_edges
 from .form_factor import contour_integral
 from .hierarchy import TileHierarchy, build_hierarchy, visit_tiles
 from .parallel import Cancelled
@@ -105,6 +106,15 @@ def scene_tile_edges(scene: Scene, occ: Occluders) -> TileEdges:
     return cached[1]
 
 
+def scene_node_edges(scene: Scene, occ: Occluders) -> NodeEdges:
+    """The welded edges of every hierarchy node (:func:`.far_field.node_edges`), cached on the scene."""
+    cached = getattr(scene, "_node_edges", None)
+    if cached is None or cached[0] is not occ:
+        cached = (occ, node_edges(scene, occ, scene_hierarchy(scene, occ), scene_tile_edges(scene, occ)))
+        scene._node_edges = cached
+    return cached[1]
+
+
 def scene_hierarchy(scene: Scene, occ: Occluders) -> TileHierarchy:
     cached = getattr(scene, "_hierarchy", None)
     if cached is None or cached[0] is not occ:
@@ -158,7 +168,7 @@ def _wanted_tiles(scene: Scene, occ: Occluders, row: np.ndarray) -> np.ndarray:
 
 
 def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool,
-            budget: int = DEFAULT_BUDGET, signed: bool | None = None):
+            budget: int = DEFAULT_BUDGET, signed: bool | None = None, far_field: bool = False):
     """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
     fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
     ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
@@ -166,7 +176,11 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     fragments carry no vertices (``verts`` None), only their ids; ``signed=False`` keeps the clear tiles
     apart but subtracts the rest into real fragments (the gradients need their edges).
 
-    ``include``: None, or bool (m, n) / (1, n) pairs to project (others only occlude)."""
+    ``include``: None, or bool (m, n) / (1, n) pairs to project (others only occlude).
+
+    ``far_field`` (with ``use_clear``, constant radiance; only for a tolerance > 0): whole hierarchy nodes
+    that are clear are not expanded (:mod:`.far_field`) and come as ``clear = (pairs, tile_edges, nodes)``
+    with ``nodes = (point, node, side)``; without it ``clear`` has two items and nothing changes."""
     signed = use_clear if signed is None else signed
     reps = _representatives(scene)
     row = _row(include)
@@ -179,7 +193,18 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     sv, table = shadow_volumes(occ, points, normals, limit)
     cov = coverage(sv, table, occ, points)
     wanted = None if row is None else _wanted_tiles(scene, occ, row)
-    tiles = visit_tiles(scene_hierarchy(scene, occ), occ, sv, table, cov, points, normals, wanted)
+    h = scene_hierarchy(scene, occ)
+    clear_test = None
+    far_field = far_field and use_clear and not scene.linear and len(occ.tile_occluder) > 0
+    if far_field:
+        ne = scene_node_edges(scene, occ)
+        free = None if limit is None else ~limit.any(axis=1)
+
+        def clear_test(ep, en):
+            ok, side = clear_node_test(ne, h, points, normals, ep, en)
+            return (ok if free is None else ok & free[ep]), side
+
+    tiles = visit_tiles(h, occ, sv, table, cov, points, normals, wanted, clear_test)
     cov.tiles = tiles
     clear = None
     keep = np.ones(len(tiles.point), dtype=bool)
@@ -187,11 +212,11 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
         te = scene_tile_edges(scene, occ)
         pairs = clear_pairs(te, occ, cov, sv, table, points, normals, limit)
         keep[pairs.pair] = False
-        clear = (pairs, te)
+        clear = (pairs, te) if not far_field else (pairs, te, tiles.nodes)
     k = scene.poly_vertices.shape[1] + 1
     n_cand = int(np.diff(occ.tile_ptr)[tiles.tile[keep]].sum()) if len(tiles.point) else 0
     if n_cand * k > budget and len(points) > 1:
-        return _split(scene, points, normals, limit, occ, include, use_clear, budget, signed)
+        return _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field)
     tiles = tiles.take(keep) if not keep.all() else tiles
     cov.tiles = tiles
     cand = hemisphere_candidates(scene, points, normals, limit, include, occ, tiles)
@@ -219,14 +244,14 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     return frags, ff, clear
 
 
-def _split(scene, points, normals, limit, occ, include, use_clear, budget, signed):
+def _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field=False):
     """:func:`visible` for the two halves of the receivers, joined (receiver indices as in the whole)."""
     h = len(points) // 2
     parts = []
     for s, e in ((0, h), (h, len(points))):
         inc = None if include is None else (include if np.asarray(include).shape[0] == 1 else include[s:e])
         parts.append(visible(scene, points[s:e], normals[s:e], None if limit is None else limit[s:e], occ, inc,
-                             use_clear=use_clear, budget=budget, signed=signed))
+                             use_clear=use_clear, budget=budget, signed=signed, far_field=far_field))
     (f0, ff0, c0), (f1, ff1, c1) = parts
     f1.point = f1.point + h
     if f0.verts is None:
@@ -242,6 +267,9 @@ def _split(scene, points, normals, limit, occ, include, use_clear, budget, signe
                            np.concatenate([c[0].tile for c in cs]), np.concatenate([c[0].side for c in cs]),
                            np.concatenate([c[0].pair for c in cs]))
         clear = (pairs, cs[0][1])
+        if far_field:
+            clear = clear + (tuple(np.concatenate([c[2][i] + (o if i == 0 else 0) for c, o in zip(cs, offs)])
+                                   for i in range(3)),)
     return frags, np.concatenate([ff0, ff1]), clear
 
 

@@ -198,13 +198,15 @@ class TilePairs:
     ptr: np.ndarray
     q: np.ndarray
     visited: int = 0
+    nodes: tuple | None = None
 
     def take(self, sel) -> TilePairs:
         sel = np.flatnonzero(sel) if np.asarray(sel).dtype == bool else np.asarray(sel)
         b, q = expand(sel, self.ptr, self.q)
         ptr = np.zeros(len(sel) + 1, dtype=np.int64)
         np.add.at(ptr, b + 1, 1)
-        return TilePairs(self.point[sel], self.tile[sel], self.tested[sel], np.cumsum(ptr), q, self.visited)
+        return TilePairs(self.point[sel], self.tile[sel], self.tested[sel], np.cumsum(ptr), q, self.visited,
+                         self.nodes)
 
 
 def _box_range(h: TileHierarchy, node, point, normal, offset, points):
@@ -292,7 +294,7 @@ def _enclosed(h: TileHierarchy, enc, face_solid, node, point, points):
     return out_b
 
 
-def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wanted=None) -> TilePairs:
+def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wanted=None, clear_test=None) -> TilePairs:
     """Traverse the hierarchy for every receiver of a chunk (see the module doc): the surviving tiles.
 
     Args:
@@ -300,13 +302,17 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
             (:func:`.visibility.shadow_volumes`); cov: level 1 (:func:`.visibility.coverage`);
         points, normals: (m, 3) receivers; tile_wanted: (T,) bool tiles with a member to project, or
             None (all).
+        clear_test: None, or ``clear_test(ep, en) -> (clear (E,), side (E,))`` for (receiver, inner node)
+            entries with no cutting volume left (:func:`.far_field.clear_node_test`): clear nodes are not
+            expanded but returned whole in ``nodes`` (only with a tolerance; None keeps the exact path).
     Returns:
-        :class:`TilePairs`.
+        :class:`TilePairs` (``nodes = (point, node, side)`` of the clear nodes when ``clear_test`` is given).
     """
     m, n_o, n_t = len(points), occ.n, h.n_tiles
     empty = np.zeros(0, dtype=np.int64)
     if n_t == 0 or m == 0:
-        return TilePairs(empty, empty, np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), empty)
+        nodes = None if clear_test is None else (empty, empty, np.zeros(0))
+        return TilePairs(empty, empty, np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), empty, 0, nodes)
     wanted = None
     if tile_wanted is not None:
         # a node is wanted when one of its tiles is (prefix sums over the tree order)
@@ -331,6 +337,7 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
     if occ.solids is not None and occ.solids.n:
         face_solid[occ.solids.face_occ] = occ.solids.face_solid
     leaves_p, leaves_t, leaves_cut, leaves_k, leaf_lb, leaf_lq = [], [], [], [], [], []
+    node_p, node_n, node_s = [], [], []
     visited = 0
     while len(ep):
         visited += len(ep)
@@ -368,6 +375,16 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
                 drop_l[sel[outside]] = True
             keep_l = ~drop_l & alive[lb]
             lb, lq = lb[keep_l], lq[keep_l]
+        if clear_test is not None:
+            # inner nodes with a face instance and no cutting volume left: whole, if the test says so
+            free = np.flatnonzero(inner & alive & (k >= 0) & (np.bincount(lb, minlength=len(ep)) == 0))
+            if len(free):
+                ok, side = clear_test(ep[free], en[free])
+                hit = free[ok]
+                node_p.append(ep[hit])
+                node_n.append(en[hit])
+                node_s.append(side[ok])
+                alive[hit] = False
         # leaves go out; inner nodes expand to their children
         out = np.flatnonzero(alive & leaf)
         if len(out):
@@ -395,8 +412,12 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
         cb, lq = expand(b, pptr, plq)
         lb = cb
         ep, en, cut, k = ep[go][b], child, cut[go][b], k[go][b]
+    nodes = None
+    if clear_test is not None:
+        nodes = (np.concatenate(node_p or [empty]), np.concatenate(node_n or [empty]),
+                 np.concatenate(node_s or [np.zeros(0)]))
     if not leaves_p:
-        return TilePairs(empty, empty, np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), empty, visited)
+        return TilePairs(empty, empty, np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), empty, visited, nodes)
     tp, tt = np.concatenate(leaves_p), np.concatenate(leaves_t)
     tcut, tk = np.concatenate(leaves_cut), np.concatenate(leaves_k)
     lb, lq = np.concatenate(leaf_lb), np.concatenate(leaf_lq)
@@ -424,4 +445,4 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
     srt = np.argsort(lb, kind="stable")
     ptr = np.zeros(len(order) + 1, dtype=np.int64)
     np.add.at(ptr, lb + 1, 1)
-    return TilePairs(tp[order], tt[order], tcut[order], np.cumsum(ptr), lq[srt], visited)
+    return TilePairs(tp[order], tt[order], tcut[order], np.cumsum(ptr), lq[srt], visited, nodes)

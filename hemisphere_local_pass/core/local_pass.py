@@ -25,6 +25,7 @@ from .chunk import (
     contour_by_width,
     prepare_scene,
     scene_hierarchy,
+    scene_node_edges,
     scene_occluders,
     scene_tile_edges,
     visible,
@@ -32,11 +33,13 @@ from .chunk import (
 )
 from .clear_tiles import clear_form_factors, clear_irradiance
 from .culling import Occluders
+from .far_field import ROUNDING, FarFieldStats, far_field_irradiance, proxy_scene
 from .parallel import PREPARE_LOCK, run_chunks
 from .receivers import prepare_receivers
 from .scene import Scene
 
-__all__ = ["Cancelled", "form_factors", "irradiance", "prepare_scene", "radiance", "visible_fragments_and_clear_tiles",
+__all__ = ["Cancelled", "FarFieldStats", "form_factors", "irradiance", "prepare_scene", "radiance",
+           "visible_fragments_and_clear_tiles",
            "visible_fragments_with_ff"]
 
 #: at most this many receivers per chunk: small scenes' chunks then stay in cache (175 polygons: chunks
@@ -91,10 +94,10 @@ def _settle_allocator():
 
 
 def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, chunk_fn, out, workers,
-         executor, polygons=None):
+         executor, polygons=None, extra=()):
     """``out[s:e] = chunk_fn((scene, occ, budget), p, n, u)`` for every chunk ``(s, e)`` of the receivers
     (sized by :func:`_chunks` with ``polygons``), here or on workers (see :func:`.parallel.run_chunks`);
-    ``out`` is ``(m, ...)``."""
+    ``out`` is ``(m, ...)``; ``extra``: further arguments of every chunk (after ``p, n, u``)."""
     _settle_allocator()
     p, n, u = _prepare_receivers(points, normals, limit_directions)
     chunks = _chunks(scene, len(p), budget, polygons)
@@ -102,10 +105,12 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
         with PREPARE_LOCK:
             _tile_edges(scene, occ)  # prepared once here and shipped with the scene, not in every worker
             scene_hierarchy(scene, occ)
+            if chunk_fn is _irradiance_far_chunk and not scene.linear:
+                scene_node_edges(scene, occ)
 
     def args_of(s, e):
         # fresh arrays in every case: a chunk sees the same memory layout here and in a worker
-        return p[s:e].copy(), n[s:e].copy(), None if u is None else u[s:e].copy()
+        return (p[s:e].copy(), n[s:e].copy(), None if u is None else u[s:e].copy()) + tuple(extra)
 
     def store(s, e, value):
         out[s:e] = value
@@ -202,7 +207,9 @@ def irradiance(
     budget: int = DEFAULT_BUDGET,
     workers: int | None = None,
     executor: cf.Executor | None = None,
-) -> np.ndarray:
+    tolerance=0.0,
+    return_stats: bool = False,
+):
     """Irradiance ``H = ∫ L cosθ dω = π Σ_i L_i F_i`` at every receiver, ``(m, 3)`` float64 (W m^-2).
 
     This is the paper's eq. 1 with radiance ``L_i`` (W sr^-1 m^-2) on the polygons. Its eq. 2–3 write
@@ -213,18 +220,55 @@ def irradiance(
     Polygons emit from their front side only unless the scene is ``double_sided``; polygons with zero
     radiance are only occluders. With per-corner radiance, radiance varies linearly over each triangle and
     is integrated over the visible fragments (see :mod:`.linear_radiance`). Arguments as for
-    :func:`form_factors`.
+    :func:`form_factors`, and:
+
+    Args:
+        tolerance: absolute tolerance on H (W m^-2), a number or one per channel (3,), >= 0. 0 (the
+            default) is the exact result. With ``tolerance > 0`` (constant radiance per polygon) clear
+            parts of the spatial hierarchy are summed whole over their welded edges and edges between
+            polygons of nearly equal radiance may be bounded instead of computed (:mod:`.far_field`); the
+            bound used is at most the tolerance per receiver and channel (plus a rounding allowance of
+            ~1e-10 of the sums; :data:`.far_field.ROUNDING`). Form factors have one weight per polygon
+            and take no tolerance.
+        return_stats: also return a :class:`.far_field.FarFieldStats` (``error_bound (m, 3)``):
+            ``(H, stats)``.
     """
     m = len(np.asarray(points).reshape(-1, 3))
-    out = np.zeros((m, 3))
+    tol = _tolerance(tolerance)
+    far = bool((tol > 0).any()) and not scene.linear
+    out = np.zeros((m, 9 if far else 3))
     with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
         occ = _occluders(scene, occluders)
+        if far:
+            # half the tolerance for the nearly uniform faces (proxies), half for the edges left out
+            given = scene
+            scene, _ = proxy_scene(given, occ, 0.5 * tol)
+            if scene is not given:
+                occ = _occluders(scene, None)
+            tol = 0.5 * tol
         _radiance_tables(scene)  # once here, and shipped to the workers with the scene
     # the chunk's candidates are bounded by the visibility stage itself (it splits a chunk whose surviving
     # tiles hold too many), and the output is (m, 3): chunks need not shrink with the scene's size
-    _run(scene, occ, points, normals, limit_directions, progress, cancel, budget, _irradiance_chunk, out, workers,
-         executor, polygons=min(scene.n_polygons, IRRADIANCE_CHUNK_POLYGONS))
-    return out
+    _run(scene, occ, points, normals, limit_directions, progress, cancel, budget,
+         _irradiance_far_chunk if far else _irradiance_chunk, out, workers, executor,
+         polygons=min(scene.n_polygons, IRRADIANCE_CHUNK_POLYGONS), extra=(tol,) if far else ())
+    h = out[:, :3] if far else out
+    if far:
+        h = np.ascontiguousarray(h)
+    if not return_stats:
+        return h
+    if not far:
+        return h, FarFieldStats(tol, np.zeros((m, 3)), np.zeros(m), np.zeros(m), np.zeros(m))
+    return h, FarFieldStats(tol, np.ascontiguousarray(out[:, 3:6]), out[:, 6].copy(), out[:, 7].copy(),
+                            out[:, 8].copy())
+
+
+def _tolerance(tolerance) -> np.ndarray:
+    """``tolerance`` as a (3,) float64 array, checked: finite and >= 0."""
+    tol = np.asarray(tolerance, dtype=np.float64)
+    if tol.ndim > 1 or (tol.ndim == 1 and len(tol) != 3) or not np.isfinite(tol).all() or (tol < 0).any():
+        raise ValueError(f"tolerance must be a number >= 0 or three of them (W/m2 per channel), got {tolerance!r}")
+    return np.broadcast_to(tol, (3,)).copy()
 
 
 def _radiance_tables(scene: Scene):
@@ -271,15 +315,62 @@ def _irradiance_chunk(shared, p, n, u) -> np.ndarray:
     return out
 
 
+def _irradiance_far_chunk(shared, p, n, u, tol) -> np.ndarray:
+    """One chunk of :func:`irradiance` with a tolerance: ``(m_chunk, 9)``: H, its error bound, edges skipped,
+    edges summed and clear nodes per receiver (see :class:`.far_field.FarFieldStats`)."""
+    _settle_allocator()  # also in worker processes
+    scene, occ, budget = shared
+    emits, rad_cols, nonnegative = _radiance_tables(scene)
+    m = len(p)
+    out = np.zeros((m, 9))
+    include = np.broadcast_to(emits[None, :], (m, scene.n_polygons))
+    frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=True, budget=budget, far_field=True)
+    lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
+    w = np.where(lit, ff, 0.0)
+    half = getattr(scene, "_half_range", None)
+    for c in range(3):
+        lw = w * rad_cols[c][frags.poly]
+        out[:, c] = np.pi * np.bincount(frags.point, weights=lw, minlength=m)
+        # rounding allowance: this sum and the exact path's add (partly) different terms
+        out[:, 3 + c] = ROUNDING * np.pi * np.bincount(frags.point, weights=np.abs(lw), minlength=m)
+        if half is not None:  # the proxies' bound, π Σ ½ range F (the signed terms sum to F >= 0)
+            hw = w * half[frags.poly, c]
+            out[:, 3 + c] += (np.abs(np.pi * np.bincount(frags.point, weights=hw, minlength=m))
+                              + ROUNDING * np.pi * np.bincount(frags.point, weights=np.abs(hw), minlength=m))
+    out[:, 3:6] *= 1.0 + 1e-9
+    if clear is not None:
+        pairs, _, nodes = clear
+        point = np.concatenate([nodes[0], pairs.point])
+        node = np.concatenate([nodes[1], pairs.tile])       # a tile is the hierarchy's leaf of the same id
+        side = np.concatenate([nodes[2], pairs.side])
+        lit = np.ones(len(side), dtype=bool) if scene.double_sided else side < 0
+        hier = scene_hierarchy(scene, occ)
+        h, bound, skipped, summed = far_field_irradiance(scene_node_edges(scene, occ), hier, point[lit], node[lit],
+                                                         side[lit], p, n, tol)
+        out[:, :3] += h
+        out[:, 3:6] += bound
+        out[:, 6], out[:, 7] = skipped, summed
+        out[:, 8] = np.bincount(nodes[0], minlength=m)
+    if nonnegative:
+        np.maximum(out[:, :3], 0.0, out=out[:, :3])
+    return out
+
+
 def radiance(scene: Scene, points, normals, reflectivity, emission=0.0, **kwargs) -> np.ndarray:
     """Outgoing radiance ``L = E + ρ/π H`` (eq. 5) of diffuse receivers, ``(m, 3)`` float64.
 
     With :func:`irradiance`'s ``H = π Σ L_i F_i`` this is ``E + ρ Σ L_i F_i`` (W sr^-1 m^-2).
 
     ``reflectivity`` ρ and ``emission`` E broadcast to ``(m, 3)`` (scalars, RGB triples or per point).
-    Other keyword arguments go to :func:`irradiance`.
+    Other keyword arguments go to :func:`irradiance`; with ``return_stats=True`` the result is ``(L,
+    stats)`` and ``stats.error_bound`` is the bound on L (``ρ/π`` times the bound on H).
     """
-    h = irradiance(scene, points, normals, **kwargs)
+    res = irradiance(scene, points, normals, **kwargs)
+    h, stats = res if kwargs.get("return_stats") else (res, None)
     rho = np.broadcast_to(np.asarray(reflectivity, dtype=np.float64), h.shape)
     e = np.broadcast_to(np.asarray(emission, dtype=np.float64), h.shape)
-    return e + rho / np.pi * h
+    out = e + rho / np.pi * h
+    if stats is None:
+        return out
+    return out, FarFieldStats(stats.tolerance, np.abs(rho) / np.pi * stats.error_bound, stats.edges_skipped,
+                              stats.edges_summed, stats.clear_nodes)

@@ -1,0 +1,204 @@
+"""The error-bounded far field (core/far_field.py): irradiance with a tolerance.
+
+Every case compares ``irradiance(..., tolerance=t, return_stats=True)`` with the exact call on the same
+receivers: the measured error ``|H_t − H_exact|`` must not exceed the returned bound, per receiver and
+channel, and the bound must not exceed the tolerance (plus its stated rounding allowance,
+:data:`~hemisphere_local_pass.core.far_field.ROUNDING` of the sums). The scenes are built to break
+the bound: a chequerboard of contrasting radiance (nothing may be skipped), a low-contrast
+chequerboard and a radiance ramp (edges are skipped, the error is real), a bright small patch among
+dim polygons, receivers close to a subdivided wall, grazing normals, one-sided limits, double-sided
+emitters and a subdivided plane hidden behind a wall. ``tolerance = 0`` is the exact path, bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hemisphere_local_pass.core import Scene, irradiance, radiance
+from hemisphere_local_pass.core.far_field import ROUNDING, FarFieldStats
+from hemisphere_local_pass.scenes import cornell_box
+
+BOX = cornell_box(12)
+
+
+def _receivers(rng, m, offset=1e-6):
+    """Receivers on random polygons of the box, just off their front side, facing along the normal."""
+    pick = rng.choice(BOX.n_polygons, size=m)
+    u, v = rng.uniform(0.05, 0.95, size=(2, m))
+    quads = BOX.vertices[np.array([BOX.polygons[i] for i in pick])]
+    pts = (1 - u)[:, None] * ((1 - v)[:, None] * quads[:, 0] + v[:, None] * quads[:, 1]) \
+        + u[:, None] * ((1 - v)[:, None] * quads[:, 3] + v[:, None] * quads[:, 2])
+    nrm = BOX.normals()[pick]
+    return pts + offset * nrm, nrm
+
+
+def _chequer(contrast, base=1.0):
+    """Radiance alternating ``base ± contrast`` polygon by polygon (neighbours differ), light kept bright."""
+    parity = (np.arange(BOX.n_polygons) % 2) * 2 - 1
+    rad = base + contrast * parity[:, None] * np.array([1.0, 0.5, 0.25])
+    return rad + BOX.emission
+
+
+def _spiked(rad):
+    """``rad`` with one polygon of every part 0.5 brighter: no face is nearly uniform (no proxies)."""
+    rad = rad.copy()
+    for nm in set(BOX.names):
+        rad[BOX.names.index(nm)] += 0.5
+    return rad
+
+
+def _check(scene, pts, nrm, rel_tol=1e-4, limit=None, expect_skips=None, expect_error=None):
+    exact = irradiance(scene, pts, nrm, limit_directions=limit, workers=1)
+    tol = rel_tol * exact.mean(axis=0)
+    h, st = irradiance(scene, pts, nrm, limit_directions=limit, workers=1, tolerance=tol, return_stats=True)
+    assert isinstance(st, FarFieldStats)
+    err = np.abs(h - exact)
+    assert (err <= st.error_bound).all(), (err - st.error_bound).max()
+    # the skipped part stays within the tolerance; the rest is the stated rounding allowance
+    assert (st.error_bound <= tol * (1 + 1e-12) + 1e-9 * (1.0 + np.abs(exact))).all()
+    if expect_skips is True:
+        assert st.edges_skipped.sum() > 0
+    elif expect_skips is False:
+        assert st.edges_skipped.sum() == 0
+    if expect_error:
+        assert err.max() > 1e3 * np.finfo(float).eps * np.abs(exact).max()  # a real error, not rounding
+    return h, exact, st
+
+
+def test_tolerance_zero_is_the_exact_path_bit_for_bit():
+    rng = np.random.default_rng(1)
+    scene = BOX.scene(radiance=rng.uniform(0.0, 2.0, size=(BOX.n_polygons, 3)))
+    pts, nrm = _receivers(rng, 200)
+    ref = irradiance(scene, pts, nrm, workers=1)
+    for tol in (0.0, [0.0, 0.0, 0.0], np.zeros(3)):
+        h = irradiance(scene, pts, nrm, workers=1, tolerance=tol)
+        assert h.tobytes() == ref.tobytes()
+    h, st = irradiance(scene, pts, nrm, workers=1, tolerance=0.0, return_stats=True)
+    assert h.tobytes() == ref.tobytes()
+    assert (st.error_bound == 0).all() and st.max_error_bound == 0.0
+
+
+def test_constant_walls_are_summed_as_nodes_exactly_to_rounding():
+    """The bench scene's kind: constant radiance per wall. Clear nodes above the tiles are summed whole
+    (their interior edges weigh exactly zero), nothing needs skipping, and H agrees to rounding."""
+    rad = BOX.emission + 0.1 * BOX.reflectivity * (BOX.emission.sum(axis=1) == 0)[:, None]
+    scene = BOX.scene(radiance=rad)
+    pts, nrm = _receivers(np.random.default_rng(2), 256)
+    h, exact, st = _check(scene, pts, nrm, expect_skips=False)
+    assert st.clear_nodes.sum() > 0
+    np.testing.assert_allclose(h, exact, rtol=1e-12, atol=1e-15)
+
+
+def test_contrasting_chequerboard_skips_nothing():
+    scene = BOX.scene(radiance=_chequer(0.9))
+    pts, nrm = _receivers(np.random.default_rng(3), 128)
+    _check(scene, pts, nrm, expect_skips=False)
+
+
+@pytest.mark.parametrize("contrast", [1e-6, 1e-8])
+def test_low_contrast_chequerboard_skips_edges_within_the_bound(contrast):
+    """A spike on every face keeps the faces apart (no proxies): the weak edges are left out."""
+    scene = BOX.scene(radiance=_spiked(_chequer(contrast)))
+    pts, nrm = _receivers(np.random.default_rng(4), 128)
+    _check(scene, pts, nrm, rel_tol=1e-5 if contrast == 1e-6 else 1e-7, expect_skips=True, expect_error=True)
+
+
+@pytest.mark.parametrize("contrast", [1e-6, 1e-8])
+def test_low_contrast_chequerboard_faces_become_proxies_within_the_bound(contrast):
+    """Without spikes every face is nearly uniform: one polygon of mid-range radiance each."""
+    scene = BOX.scene(radiance=_chequer(contrast))
+    pts, nrm = _receivers(np.random.default_rng(4), 128)
+    _, exact, st = _check(scene, pts, nrm, rel_tol=1e-5 if contrast == 1e-6 else 1e-7, expect_error=True)
+    assert (st.error_bound[exact > 0] > 0).all()       # (receivers on the floor inside a block see nothing)
+
+
+def test_radiance_ramp_within_the_bound():
+    c = np.array([np.mean([BOX.vertices[i] for i in p], axis=0) for p in BOX.polygons])
+    rad = 1.0 + 1e-6 * (c @ np.array([1.0, 2.0, 3.0]))[:, None] * np.array([1.0, -1.0, 0.5])
+    pts, nrm = _receivers(np.random.default_rng(5), 128)
+    _check(BOX.scene(radiance=rad), pts, nrm, rel_tol=1e-6, expect_error=True)
+    _check(BOX.scene(radiance=_spiked(rad)), pts, nrm, rel_tol=1e-6, expect_skips=True, expect_error=True)
+
+
+def test_bright_small_patch_among_dim_polygons():
+    rng = np.random.default_rng(6)
+    rad = np.full((BOX.n_polygons, 3), 1e-3) * (1 + 1e-7 * rng.uniform(size=(BOX.n_polygons, 1)))
+    walls = [i for i, nm in enumerate(BOX.names) if nm == "back wall"]
+    rad[walls[len(walls) // 2]] = 1e4
+    scene = BOX.scene(radiance=rad)
+    pts, nrm = _receivers(rng, 128)
+    h, exact, st = _check(scene, pts, nrm)
+    # the patch dominates H: its edges are never skipped, so the error stays far below the patch's share
+    assert (np.abs(h - exact) <= 1e-4 * exact.mean(axis=0)).all()
+
+
+def test_receivers_close_to_a_subdivided_wall_and_grazing():
+    rng = np.random.default_rng(7)
+    scene = BOX.scene(radiance=_spiked(_chequer(1e-6)))
+    m = 96
+    # close to the back wall (y = 1), facing it, and on the floor with nearly horizontal normals
+    close = np.column_stack([rng.uniform(0.05, 0.95, m), 1.0 - 10.0 ** rng.uniform(-6, -2, m),
+                             rng.uniform(0.05, 0.95, m)])
+    n_close = np.tile([0.0, 1.0, 0.0], (m, 1))
+    floor = np.column_stack([rng.uniform(0.05, 0.95, m), rng.uniform(0.05, 0.6, m), np.full(m, 1e-7)])
+    tilt = 10.0 ** rng.uniform(-9, -2, m)
+    ang = rng.uniform(0, 2 * np.pi, m)
+    n_graze = np.column_stack([np.cos(ang), np.sin(ang), tilt])
+    n_graze /= np.linalg.norm(n_graze, axis=1, keepdims=True)
+    _check(scene, np.vstack([close, floor]), np.vstack([n_close, n_graze]), rel_tol=1e-5)
+
+
+def test_one_sided_limits_double_sided_and_hidden_geometry():
+    rng = np.random.default_rng(8)
+    rad = _chequer(1e-7)
+    # a subdivided plane behind the back wall (hidden from every receiver), radiance 1
+    s = np.linspace(0.0, 1.0, 21)
+    u, v = np.meshgrid(s, s, indexing="ij")
+    pv = np.column_stack([u.ravel(), np.full(u.size, 1.05), v.ravel()])
+    i, j = np.meshgrid(np.arange(20), np.arange(20), indexing="ij")
+    a = (i * 21 + j).ravel()
+    quads = np.stack([a, a + 1, a + 22, a + 21], axis=1) + len(BOX.vertices)
+    verts = np.vstack([BOX.vertices, pv])
+    polys = list(BOX.polygons) + [list(q) for q in quads]
+    rad = np.vstack([rad, np.ones((len(quads), 3))])
+    pts, nrm = _receivers(rng, 128, offset=0.0)
+    limit = np.zeros_like(pts)
+    limit[::3] = np.cross(nrm[::3], rng.normal(size=(len(nrm[::3]), 3)))
+    limit[::3] /= np.linalg.norm(limit[::3], axis=1, keepdims=True)
+    for double in (False, True):
+        scene = Scene.from_polygons(verts, polys, rad, double_sided=double)
+        _check(scene, pts, nrm, rel_tol=1e-6, limit=limit)
+
+
+def test_radiance_returns_the_bound_on_l_and_bad_tolerances_are_refused():
+    rng = np.random.default_rng(9)
+    scene = BOX.scene(radiance=_chequer(1e-6))
+    pts, nrm = _receivers(rng, 64)
+    tol = 1e-5
+    h, sth = irradiance(scene, pts, nrm, workers=1, tolerance=tol, return_stats=True)
+    ell, stl = radiance(scene, pts, nrm, 0.5, 0.1, workers=1, tolerance=tol, return_stats=True)
+    np.testing.assert_array_equal(ell, 0.1 + 0.5 / np.pi * h)
+    np.testing.assert_array_equal(stl.error_bound, 0.5 / np.pi * sth.error_bound)
+    exact = radiance(scene, pts, nrm, 0.5, 0.1, workers=1)
+    assert (np.abs(ell - exact) <= stl.error_bound).all()
+    for bad in (-1e-3, np.nan, [1e-3, 1e-3], [[1e-3] * 3]):
+        with pytest.raises(ValueError, match="tolerance"):
+            irradiance(scene, pts, nrm, workers=1, tolerance=bad)
+
+
+def test_the_rounding_allowance_is_small():
+    assert ROUNDING < 1e-9
+
+
+def test_bit_identical_on_workers():
+    """With a tolerance the chunks are still the job's: 1 and 2 workers give the same bits and bounds."""
+    rng = np.random.default_rng(10)
+    scene = BOX.scene(radiance=_spiked(_chequer(1e-6)))
+    pts, nrm = _receivers(rng, 160)
+    tol = 1e-5
+    h1, s1 = irradiance(scene, pts, nrm, workers=1, budget=2**15, tolerance=tol, return_stats=True)
+    h2, s2 = irradiance(scene, pts, nrm, workers=2, budget=2**15, tolerance=tol, return_stats=True)
+    assert h1.tobytes() == h2.tobytes()
+    assert s1.error_bound.tobytes() == s2.error_bound.tobytes()
+    assert s1.edges_skipped.sum() > 0
