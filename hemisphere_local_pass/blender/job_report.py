@@ -79,9 +79,10 @@ class JobReport:
 
 @dataclass
 class JobStep:
-    """What :func:`local_pass_steps` yields after every finished chunk: ``done`` of ``total``
-    receivers (points) evaluated so far. Between two steps nothing of Blender's data is touched, so
-    a modal operator can return to the event loop there (``blender/modal.py``)."""
+    """What :func:`.pipeline.local_pass_steps` yields after every finished chunk (and, while the
+    adaptive pass runs, every ``adaptive_pixels.POLL_SECONDS``): ``done`` of ``total`` receivers
+    (points) evaluated so far. Between two steps nothing of Blender's data is touched, so a modal
+    operator can return to the event loop there (``blender/modal.py``)."""
 
     done: int
     total: int

@@ -124,7 +124,8 @@ def local_pass_steps(
             (``core.adaptive_irradiance``) with an error tolerance on H *relative to the image's mean
             irradiance* (estimated from exact values on a 16-pixel grid), e.g. 1e-3; the EXR's
             ``error_estimate`` and ``exact_sample`` layers show where it interpolated. The adaptive
-            pass neither checkpoints nor computes the ``form_factor_sum`` layer (NaN there).
+            pass neither checkpoints nor computes the ``form_factor_sum`` layer (NaN there); it yields
+            a step every ``adaptive_pixels.POLL_SECONDS`` while its core calls run in a thread.
 
     Returns:
         :class:`JobReport`.

@@ -61,8 +61,8 @@ def run_pixels(scene, exported, report, *, output, region, tile, resume, samples
     shape = (window[3] - window[1], window[2] - window[0])
     ck = None
     if tolerance > 0:
-        h_hit, exact_hit, err_hit = adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance,
-                                                     progress, cancel, report)
+        h_hit, exact_hit, err_hit = yield from adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2,
+                                                               tolerance, progress, cancel, report)
         fsum_hit = np.full(len(pts), np.nan)  # not computed: the adaptive pass evaluates H only
         report.max_form_factor_error = float("nan")
     else:
