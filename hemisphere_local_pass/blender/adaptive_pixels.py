@@ -47,6 +47,10 @@ def adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance, pr
 
     total = int(hit.sum())
     stop = threading.Event()
+    # waited on instead of Thread.join(timeout): on Python 3.11 a KeyboardInterrupt inside join()
+    # marks the still running thread as stopped (threading's bpo-45274 handler), so the next join()
+    # returns at once and the interpreter may exit under the running thread (measured: a segfault)
+    finished = threading.Event()
     state = {"done": 0, "result": None, "error": None}
 
     def work():
@@ -55,26 +59,29 @@ def adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance, pr
                                              stop.is_set)
         except BaseException as exc:  # raised again in the caller's thread
             state["error"] = exc
+        finally:
+            finished.set()
 
     thread = threading.Thread(target=work, name="hlp-adaptive", daemon=True)
     thread.start()
     reported = None
     try:
         while True:
-            thread.join(POLL_SECONDS)
+            finished.wait(POLL_SECONDS)
             done = state["done"]
             if progress is not None and done != reported:
                 progress(done, total)
                 reported = done
-            if not thread.is_alive():
+            if finished.is_set():
                 break
             yield JobStep(done, total)  # the caller may return to Blender's event loop
             if cancel is not None and cancel():
                 raise Cancelled("local pass cancelled")
     except BaseException:
         stop.set()
-        thread.join()
+        _wait(finished)
         raise
+    thread.join()  # it has finished: only its end is left
     if state["error"] is not None:
         raise state["error"]
     h_hit, exact_hit, err_hit, exact_points, absolute, error_estimate = state["result"]
@@ -82,6 +89,17 @@ def adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance, pr
     report.tolerance = absolute
     report.error_estimate = error_estimate
     return h_hit, exact_hit, err_hit
+
+
+def _wait(finished):
+    """Wait for the thread to see its stop event (at the core's next chunk, a fraction of a second):
+    a further Ctrl-C meanwhile does not leave it running under the caller."""
+    while True:
+        try:
+            finished.wait()
+            return
+        except KeyboardInterrupt:
+            continue
 
 
 def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, state, cancel):

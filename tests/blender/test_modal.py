@@ -115,6 +115,16 @@ def test_adaptive_pass_yields_while_it_runs_and_esc_stops_it(hlp, monkeypatch):
     with pytest.raises(cancelled):
         hlp["job"].run_local_pass(cancel=lambda: True, **kwargs)
     assert not _adaptive_threads() and bpy.data.images.get(hlp["job"].IMAGE_NAME) is None
+    calls = []
+
+    def interrupted(done, total):  # Ctrl-C in the caller's thread while the pass runs
+        calls.append(done)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        hlp["job"].run_local_pass(progress=interrupted, **kwargs)
+    assert len(calls) == 2 and not _adaptive_threads()  # the thread was stopped and waited for
 
 
 def test_bake_operator_background_is_synchronous(hlp):
