@@ -15,7 +15,9 @@ class StderrProgress:
     """Percent, points/s and ETA on stderr, at most every ``interval`` seconds (and at the end);
     before the points, the job's stages (``stage(text)``), and while nothing else is printed a line
     every ``interval`` seconds saying what is running and for how long (from a daemon thread, stopped
-    by ``stage(None)``), so a long export or preparation is never silent."""
+    by ``stage(None)``), so a long export or preparation is never silent. The percent lines are spaced
+    from each other, not from the heartbeat's lines: with chunks slower than ``interval / 4`` the
+    heartbeat would otherwise always print first and no percent line would appear before 100 %."""
 
     def __init__(self, stream=None, interval=1.0):
         self.stream = stream if stream is not None else sys.stderr
@@ -23,6 +25,7 @@ class StderrProgress:
         self.start = None
         self.first = None
         self.last = 0.0
+        self.last_points = 0.0  # when the last percent line was written
         self.text = None
         self.since = 0.0
         self.lock = threading.Lock()
@@ -67,8 +70,10 @@ class StderrProgress:
         now = time.perf_counter()
         if self.start is None:
             self.start, self.first = now, done
-        if now - self.last < self.interval and done < total:
+            self.last_points = self.last  # the first percent line: an interval after the last line
+        if now - self.last_points < self.interval and done < total:
             return
+        self.last_points = now
         rate = (done - self.first) / (now - self.start) if now > self.start else 0.0
         eta = (total - done) / rate if rate > 0 else float("nan")
         pct = 100.0 * done / total if total else 100.0
