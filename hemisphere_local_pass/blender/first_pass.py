@@ -329,9 +329,9 @@ def cli_main(argv) -> int:
         report = solve_first_pass(attribute=args.attribute, tolerance=args.tolerance, order=args.order,
                                   double_sided=args.double_sided, clusters=args.clusters,
                                   progress=None if args.quiet else StderrProgress())
-        from .job import _save_blend
+        from .blend_output import save_blend
 
-        report.outputs.append(_save_blend(output))
+        report.outputs.append(save_blend(output))
     except KeyboardInterrupt:
         print(f"{prefix}interrupted; nothing was written", file=sys.stderr)
         return 130
@@ -341,7 +341,7 @@ def cli_main(argv) -> int:
         if isinstance(exc, Cancelled):
             print(f"{prefix}cancelled; nothing was written", file=sys.stderr)
             return 130
-        from .job import error_line
+        from .stderr_lines import error_line
 
         print(f"{prefix}{error_line(exc)}", file=sys.stderr)
         return 1

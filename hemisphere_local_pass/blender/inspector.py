@@ -190,8 +190,15 @@ def draw_overlay():
         gpu.state.blend_set('NONE')
 
 
+def label_text(ins) -> str:
+    """The overlay's line next to the point: sum F and H, H as the mean of its R, G, B channels
+    (W/m², the quantity the sidebar's shares are taken of; not a luminance). ``ins``: an
+    :class:`.inspector_geometry.Inspection`."""
+    return f"ΣF = {ins.form_factor_sum:.6f}   H (mean of R, G, B) = {ins.irradiance.mean():.4g} W/m²"
+
+
 def draw_label():
-    """POST_PIXEL callback: sum F and H next to the point."""
+    """POST_PIXEL callback: :func:`label_text` next to the point."""
     ins = State.inspection
     if ins is None or bpy.app.background:
         return
@@ -208,7 +215,7 @@ def draw_label():
         blf.size(font, 13, 72)
     blf.color(font, 1.0, 1.0, 1.0, 1.0)
     blf.position(font, xy[0] + 12, xy[1] - 18, 0)
-    blf.draw(font, f"ΣF = {ins.form_factor_sum:.6f}   H = {ins.irradiance.mean():.4g}")
+    blf.draw(font, label_text(ins))
 
 
 def _add_handlers():

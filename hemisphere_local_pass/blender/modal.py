@@ -299,7 +299,7 @@ class HLP_OT_bake_vertex_colours(bpy.types.Operator):
         return True
 
     def _kwargs(self, context):
-        from .operators import job_arguments
+        from .props import job_arguments
 
         kwargs = job_arguments(context.scene, context.scene.hlp_settings)
         kwargs.update(mode="vertices", output=None)

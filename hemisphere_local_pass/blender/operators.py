@@ -4,28 +4,9 @@ import time
 
 import bpy
 
-from .props import HLP_PG_settings
+from .props import job_arguments
 
 __all__ = ["HLP_OT_render_local_pass", "job_arguments"]
-
-
-def job_arguments(scene, settings: HLP_PG_settings) -> dict:
-    """Keyword arguments of ``job.run_local_pass`` taken from the scene settings."""
-    output = settings.output_path or None  # '//' is resolved by the job (an error for an unsaved file)
-    return {
-        "scene": scene,
-        "mode": settings.mode.lower(),
-        "attribute": settings.attribute,
-        "reflectivity_attribute": settings.reflectivity_attribute,
-        "emission_attribute": settings.emission_attribute,
-        "missing": settings.missing_attribute.lower(),
-        "samples": settings.samples,
-        "output": output if settings.mode == 'PIXELS' else None,
-        "double_sided": settings.double_sided,
-        "overwrite": scene.render.use_overwrite,  # Output Properties > Output > Overwrite, as Blender's renders
-        "workers": settings.workers,
-        "tolerance": getattr(settings, "tolerance", 0.0),
-    }
 
 
 class _Progress:

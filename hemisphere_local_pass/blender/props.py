@@ -1,8 +1,8 @@
 """Scene settings of the local pass: ``bpy.types.Scene.hlp_settings`` (:class:`HLP_PG_settings`).
 
-The panel (``panels.py``) shows them, the operator (``operators.py``) passes them to
-``job.run_local_pass``; the command line (``blender -c hemisphere_local_pass render``) has the same
-options as flags.
+The panel (``panels.py``) shows them, the operators (``operators.py``, ``modal.py``) pass them to
+``job.run_local_pass`` (:func:`job_arguments`); the command line (``blender -c hemisphere_local_pass
+render``) has the same options as flags.
 """
 
 import bpy
@@ -115,3 +115,22 @@ class HLP_PG_settings(bpy.types.PropertyGroup):
         description="Polygons emit their radiosity from both sides (else only from the front, the normal side)",
         default=False,
     )
+
+
+def job_arguments(scene, settings: "HLP_PG_settings") -> dict:
+    """Keyword arguments of ``job.run_local_pass`` taken from the scene settings."""
+    output = settings.output_path or None  # '//' is resolved by the job (an error for an unsaved file)
+    return {
+        "scene": scene,
+        "mode": settings.mode.lower(),
+        "attribute": settings.attribute,
+        "reflectivity_attribute": settings.reflectivity_attribute,
+        "emission_attribute": settings.emission_attribute,
+        "missing": settings.missing_attribute.lower(),
+        "samples": settings.samples,
+        "output": output if settings.mode == 'PIXELS' else None,
+        "double_sided": settings.double_sided,
+        "overwrite": scene.render.use_overwrite,  # Output Properties > Output > Overwrite, as Blender's renders
+        "workers": settings.workers,
+        "tolerance": getattr(settings, "tolerance", 0.0),
+    }

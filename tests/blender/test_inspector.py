@@ -48,6 +48,8 @@ def test_snap_and_list_agree_with_the_core(inspector):
     h = irradiance(exported.scene, ins.point[None], ins.normal[None])[0]
     assert ins.form_factor_sum == float(np.sum(proj.form_factor))
     assert np.array_equal(ins.irradiance, h)
+    # the overlay's line says what its H is: the mean of the RGB channels, with the unit
+    assert inspector.label_text(ins).endswith(f"H (mean of R, G, B) = {h.mean():.4g} W/m²")
     for row in ins.rows:
         assert row.form_factor == proj.polygon_form_factors[row.polygon]
         assert row.label == exported.polygon_name(row.polygon)

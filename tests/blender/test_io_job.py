@@ -331,7 +331,8 @@ def _raise_after(n, exc):
 def test_interrupted_run_resumes_to_the_same_file(hlp, tmp_path, monkeypatch):
     build_box(resolution=24)
     job = hlp["job"]
-    monkeypatch.setattr(job, "MIN_CHUNK", 16)  # several chunks on a small image
+    # several chunks on a small image
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 16)
     ref_path = str(tmp_path / "ref.exr")
     job.run_local_pass(output=ref_path, preview=False)
     out = str(tmp_path / "run.exr")
@@ -401,10 +402,10 @@ def test_cli_render_merge_errors_and_ctrl_c(hlp, tmp_path, capsys, monkeypatch):
     assert job.cli_main(["render", "-o", out, "--attribute", "nope", "--overwrite"]) == 1
     assert "has no attribute 'nope'" in capsys.readouterr().err
     # Ctrl-C during the run: exit 130, checkpoint kept, --resume finishes with the same file
-    monkeypatch.setattr(job, "MIN_CHUNK", 8)
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 8)
     ref = str(tmp_path / "ref.exr")
     assert job.cli_main(["render", "-o", ref, "-q", "--no-preview"]) == 0
-    real = job._StderrProgress
+    real = importlib.import_module(job.__name__.rsplit(".", 1)[0] + ".stderr_lines").StderrProgress
 
     class Interrupting(real):
         def __call__(self, done, total):
@@ -412,11 +413,11 @@ def test_cli_render_merge_errors_and_ctrl_c(hlp, tmp_path, capsys, monkeypatch):
                 raise KeyboardInterrupt
             super().__call__(done, total)
 
-    monkeypatch.setattr(job, "_StderrProgress", Interrupting)
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".cli.StderrProgress", Interrupting)
     run = str(tmp_path / "run.exr")
     assert job.cli_main(["render", "-o", run, "--no-preview"]) == 130
     assert "--resume" in capsys.readouterr().err and os.path.isfile(run + ".checkpoint.npz")
-    monkeypatch.setattr(job, "_StderrProgress", real)
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".cli.StderrProgress", real)
     assert job.cli_main(["render", "-o", run, "--no-preview", "--resume", "-q"]) == 0
     with open(ref, "rb") as a, open(run, "rb") as b:
         assert a.read() == b.read()

@@ -61,8 +61,8 @@ def heartbeat_threads():
 def test_cli_reports_every_stage_from_the_first_second(job, tmp_path, monkeypatch):
     slow_export(job, monkeypatch)
     rec = Recorder()
-    real = job._StderrProgress
-    monkeypatch.setattr(job, "_StderrProgress", lambda: real(stream=rec, interval=0.5))
+    real = importlib.import_module(job.__name__.rsplit(".", 1)[0] + ".stderr_lines").StderrProgress
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".cli.StderrProgress", lambda: real(stream=rec, interval=0.5))
     assert job.cli_main(["render", "-o", str(tmp_path / "x.exr"), "--no-preview"]) == 0
     times = [t for t, _ in rec.lines]
     text = [line for _, line in rec.lines]
@@ -88,8 +88,8 @@ def test_status_callback_and_stop_on_error(job, tmp_path, monkeypatch):
         job.run_local_pass(preview=False, image=False, status=seen.append)
     assert seen[0] == "exporting the scene" and seen[-1] is None
     rec = Recorder()
-    real = job._StderrProgress
-    monkeypatch.setattr(job, "_StderrProgress", lambda: real(stream=rec, interval=0.2))
+    real = importlib.import_module(job.__name__.rsplit(".", 1)[0] + ".stderr_lines").StderrProgress
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".cli.StderrProgress", lambda: real(stream=rec, interval=0.2))
     assert job.cli_main(["render", "-o", str(tmp_path / "y.exr")]) == 1
     assert rec.lines[0][1] == "hemisphere_local_pass: exporting the scene"
     assert not heartbeat_threads()

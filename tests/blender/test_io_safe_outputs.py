@@ -49,7 +49,7 @@ def umask_022():
 def test_outputs_get_ordinary_permissions(hlp, tmp_path, umask_022, monkeypatch):
     build_box(subdivisions=1, resolution=24)
     job = hlp["job"]
-    monkeypatch.setattr(job, "MIN_CHUNK", 16)
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 16)
     out = str(tmp_path / "a.exr")
     seen = {}
 
@@ -157,7 +157,7 @@ def test_cli_reports_written_and_refused_and_blend_rules(hlp, tmp_path, capsys):
 def test_checkpoint_of_an_interrupted_run_is_kept(hlp, tmp_path, monkeypatch):
     build_box(subdivisions=1, resolution=24)
     job = hlp["job"]
-    monkeypatch.setattr(job, "MIN_CHUNK", 16)
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 16)
     out = str(tmp_path / "c.exr")
 
     def stop(done, total):
@@ -387,7 +387,7 @@ def test_first_sigint_stops_the_job_even_where_the_host_swallows_it(hlp, tmp_pat
 
     build_box(subdivisions=1, resolution=24)
     job = hlp["job"]
-    monkeypatch.setattr(job, "MIN_CHUNK", 16)
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 16)
     out = str(tmp_path / "s.exr")
 
     def ctrl_c(done, total):

@@ -6,6 +6,7 @@ attributes. (Timers, Esc and the status bar need a window: tests/blender_exe/tes
 import importlib
 import importlib.util
 import os
+import threading
 
 import numpy as np
 import pytest
@@ -71,6 +72,59 @@ def test_steps_equal_run_local_pass_and_close_changes_nothing(hlp):
     assert not run.advance(budget=0.0)
     run.close()  # Esc between two chunks
     assert mesh_state(scene) == before
+
+
+def _adaptive_threads():
+    return [t for t in threading.enumerate() if t.name == "hlp-adaptive" and t.is_alive()]
+
+
+def test_adaptive_pass_yields_while_it_runs_and_esc_stops_it(hlp, monkeypatch):
+    """The adaptive pass (tolerance > 0) is no longer one blocking call: its core calls run in a
+    thread and the job yields a step every POLL_SECONDS meanwhile (the modal timer returns to
+    Blender's event loop there), with the exact evaluations done so far; the result is the same bits
+    however many steps it took; closing the generator mid-pass (Esc) stops and joins the thread and
+    leaves nothing behind; cancel() stops it as well."""
+    scene = build_box(16)
+    base = hlp["modal"].__name__.rsplit(".", 1)[0]
+    cancelled = importlib.import_module(base.rsplit(".", 1)[0] + ".core").Cancelled
+    monkeypatch.setattr(base + ".adaptive_pixels.POLL_SECONDS", 0.002)
+    kwargs = hlp["operators"].job_arguments(scene, scene.hlp_settings)
+    kwargs.update(mode="pixels", output=None, image=False, tolerance=1e-3)
+    run = hlp["modal"].LocalPassRun(kwargs)
+    ticks, alive, done = 0, 0, []
+    while not run.advance(budget=0.0):  # one step per tick
+        ticks += 1
+        alive += bool(_adaptive_threads())
+        done.append(run.done)
+        assert 0 <= run.done <= run.total and "points/s" in run.text()
+    assert ticks >= 2 and alive >= 1, (ticks, alive)  # the event loop got control while the pass ran
+    assert done == sorted(done) and run.report.exact_points > 0
+    assert not _adaptive_threads()
+    monkeypatch.undo()  # the default poll: fewer steps, the same bits
+    direct = hlp["job"].run_local_pass(**kwargs)
+    for key in ("irradiance", "radiance", "exact_sample", "error_estimate"):
+        assert np.array_equal(run.report.result[key], direct.result[key]), key
+    assert direct.exact_points == run.report.exact_points
+
+    monkeypatch.setattr(base + ".adaptive_pixels.POLL_SECONDS", 0.002)
+    kwargs.update(image=True)
+    run = hlp["modal"].LocalPassRun(kwargs)
+    assert not run.advance(budget=0.0) and _adaptive_threads()  # mid-pass
+    run.close()  # Esc
+    assert not _adaptive_threads() and bpy.data.images.get(hlp["job"].IMAGE_NAME) is None
+    with pytest.raises(cancelled):
+        hlp["job"].run_local_pass(cancel=lambda: True, **kwargs)
+    assert not _adaptive_threads() and bpy.data.images.get(hlp["job"].IMAGE_NAME) is None
+    calls = []
+
+    def interrupted(done, total):  # Ctrl-C in the caller's thread while the pass runs
+        calls.append(done)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        hlp["job"].run_local_pass(progress=interrupted, **kwargs)
+    assert len(calls) == 2 and not _adaptive_threads()  # the thread was stopped and waited for
 
 
 def test_bake_operator_background_is_synchronous(hlp):

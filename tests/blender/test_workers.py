@@ -50,7 +50,7 @@ def test_workers_of_the_installed_extension_import_only_its_core(mods):
 def test_job_on_workers_is_bit_identical_and_leaves_no_process(mods, tmp_path, monkeypatch):
     job = mods["blender.job"]
     build_box(resolution=16)
-    monkeypatch.setattr(job, "MIN_CHUNK", 32)  # 256 points, 8 job chunks
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 32)  # 256 points, 8 job chunks
     before = _children()
     one = job.run_local_pass(output=str(tmp_path / "one.exr"), preview=False, workers=1)
     two = job.run_local_pass(output=str(tmp_path / "two.exr"), preview=False, workers=2)
@@ -75,7 +75,7 @@ def test_job_on_workers_is_bit_identical_and_leaves_no_process(mods, tmp_path, m
 def test_cancel_and_ctrl_c_with_workers_stop_every_process(mods, tmp_path, monkeypatch):
     job, core = mods["blender.job"], mods["core"]
     build_box(resolution=16)
-    monkeypatch.setattr(job, "MIN_CHUNK", 32)
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 32)
     before = _children()
     seen = {"n": 0}
 
@@ -107,7 +107,7 @@ def test_a_killed_worker_fails_the_job_with_a_clear_error(mods, tmp_path, monkey
 
     job, parallel = mods["blender.job"], mods["core.parallel"]
     build_box(resolution=16)
-    monkeypatch.setattr(job, "MIN_CHUNK", 16)  # 16 job chunks
+    monkeypatch.setattr(job.__name__.rsplit(".", 1)[0] + ".receiver_chunks.MIN_CHUNK", 16)  # 16 job chunks
     before = _children()
     killed = []
 

@@ -317,8 +317,8 @@ def test_workers_under_blender_34(blender, blender_env, sample_blend, tmp_path):
     expr = python_expr(
         "import bpy, json, os, sys, hemisphere_local_pass as h",
         "from hemisphere_local_pass.core import parallel",
-        "from hemisphere_local_pass.blender import job",
-        "job.MIN_CHUNK = 32",  # several job chunks on the 16 x 16 image
+        "from hemisphere_local_pass.blender import receiver_chunks",
+        "receiver_chunks.MIN_CHUNK = 32",  # several job chunks on the 16 x 16 image
         f"a = h.run_local_pass(output={str(one)!r}, preview=False, workers=1)",
         f"b = h.run_local_pass(output={str(two)!r}, preview=False, workers=2)",
         "pool = parallel.WorkerPool(1)",

@@ -53,15 +53,12 @@ def test_core_public_api():
     assert proc.stdout.strip() == "True"
 
 
-def test_core_modules_import_no_cycle():
-    """The core's modules form a layered graph: no import cycle, function-level imports included
-    (``projection`` once imported the batch drivers of ``local_pass`` inside ``project_point``)."""
+def _import_graph(package_dir):
+    """``{module: modules of the same package it imports}``, function-level imports included."""
     import ast
 
-    core_dir = ROOT / "hemisphere_local_pass" / "core"
     graph = {}
-    for path in core_dir.glob("*.py"):
-        name = path.stem
+    for path in package_dir.glob("*.py"):
         deps = set()
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and node.level == 1:
@@ -69,8 +66,12 @@ def test_core_modules_import_no_cycle():
                     deps.add(node.module.split(".")[0])
                 else:
                     deps.update(a.name for a in node.names)
-        graph[name] = deps - {name}
+        graph[path.stem] = deps - {path.stem}
     graph.pop("__init__", None)
+    return graph
+
+
+def _assert_no_cycle(graph):
     state = {}
 
     def visit(m, path):
@@ -85,4 +86,37 @@ def test_core_modules_import_no_cycle():
 
     for m in sorted(graph):
         visit(m, [])
+
+
+def _reachable(graph, start):
+    seen, todo = set(), [start]
+    while todo:
+        m = todo.pop()
+        for d in graph.get(m, ()):
+            if d not in seen:
+                seen.add(d)
+                todo.append(d)
+    return seen
+
+
+def test_core_modules_import_no_cycle():
+    """The core's modules form a layered graph: no import cycle, function-level imports included
+    (``projection`` once imported the batch drivers of ``local_pass`` inside ``project_point``)."""
+    graph = _import_graph(ROOT / "hemisphere_local_pass" / "core")
+    _assert_no_cycle(graph)
     assert "local_pass" not in graph["projection"] and "local_pass" not in graph["inspection"]
+
+
+def test_blender_modules_import_no_cycle():
+    """The Blender layer too (read from the source, without bpy): no import cycle, and the job
+    function (``pipeline``) with everything it uses sits below the entry points: it never imports
+    the command line (``cli``), the public facade (``job``), the operators, the modal machinery or
+    the render engine (``first_pass`` once imported ``job`` for its CLI helpers while ``job``
+    imported ``first_pass`` for ``solve``)."""
+    graph = _import_graph(ROOT / "hemisphere_local_pass" / "blender")
+    _assert_no_cycle(graph)
+    entry_points = {"job", "cli", "operators", "modal", "engine", "panels", "registration", "first_pass_ui"}
+    below = _reachable(graph, "pipeline") | {"pipeline"}
+    assert not below & entry_points, sorted(below & entry_points)
+    assert {"pipeline", "cli"} <= graph["job"]
+    assert "job" not in _reachable(graph, "first_pass")
