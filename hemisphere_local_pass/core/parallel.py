@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures as cf
+import contextlib
 import itertools
 import os
 import pickle
@@ -53,7 +54,8 @@ import uuid
 import weakref
 from collections.abc import Callable, Sequence
 
-__all__ = ["Cancelled", "WorkerDied", "WorkerPool", "default_workers", "run_chunks", "worker_python"]
+__all__ = ["Cancelled", "PoolKeeper", "WorkerDied", "WorkerPool", "default_workers", "job_pool", "run_chunks",
+           "worker_python"]
 
 #: shared objects (scenes) a worker keeps; older ones are dropped (bounded worker memory)
 SHARED_KEEP = 2
@@ -195,6 +197,9 @@ def _worker_main() -> None:
     os.dup2(null, 0)
     os.close(null)
     parent = int(os.environ.get("HLP_WORKER_PARENT", "0")) or os.getppid()
+    nice = int(os.environ.get("HLP_WORKER_NICE", "0") or 0)
+    if nice > 0 and hasattr(os, "nice"):
+        os.nice(nice)  # below the interactive parent: its window keeps the CPU it needs to draw and see Esc
     if os.name != "nt":
         threading.Thread(target=_watch_parent, args=(parent,), daemon=True, name="hlp-parent-watch").start()
     import numpy
@@ -309,10 +314,14 @@ class WorkerPool(cf.Executor):
     Args:
         workers: processes (None or 0: :func:`default_workers`).
         python: the interpreter (default :func:`worker_python`).
+        nice: added to the workers' nice value (``os.nice``; 0: none): an interactive parent (Blender's
+            window) gives its workers a lower priority so that its own drawing and event handling — with
+            software OpenGL, CPU work of the window's threads — is not starved by them.
     """
 
-    def __init__(self, workers: int | None = None, *, python: str | None = None):
+    def __init__(self, workers: int | None = None, *, python: str | None = None, nice: int = 0):
         self.n_workers = _resolve_workers(workers)
+        self.nice = int(nice)
         self.python = python or worker_python()
         self._lock = threading.RLock()
         self._pending: collections.deque = collections.deque()
@@ -324,6 +333,7 @@ class WorkerPool(cf.Executor):
         directory = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         env = dict(os.environ)
         env["HLP_WORKER_PARENT"] = str(os.getpid())
+        env["HLP_WORKER_NICE"] = str(max(0, self.nice))
         # The workers inherit this process's BLAS settings on purpose (no OPENBLAS_NUM_THREADS=1): the
         # OpenBLAS of numpy 1.24 splits a large matrix product differently with another thread count
         # and the last bit of a result moves (seen in linear_radiance's quadrature); the core's products
@@ -541,6 +551,75 @@ class WorkerPool(cf.Executor):
         for fut, *_ in pending:
             if fut.set_running_or_notify_cancel():
                 fut.set_exception(exc)
+
+
+# ------------------------------------------------------------------------------------ one pool for many jobs
+class PoolKeeper:
+    """One :class:`WorkerPool` kept for a sequence of jobs (the bands of a render, the frames of an
+    animation) instead of one pool per job: workers start once and keep the scene they were sent
+    (:data:`SHARED_KEEP`), so a later job on the same scene sends nothing but its chunks.
+
+    :meth:`get` returns the live pool, starting one when there is none, when the last one was stopped
+    (a cancel kills it) or when another size or nice value is asked for; :meth:`close` shuts it down
+    and reaps its processes (none is left behind). Jobs pick the keeper up through :meth:`scope`.
+    Thread-safe.
+    """
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._pool: WorkerPool | None = None
+        self.started = 0  # pools started so far (tests, diagnostics)
+
+    @property
+    def pool(self) -> WorkerPool | None:
+        """The current pool (None: none started, or closed)."""
+        return self._pool
+
+    def get(self, workers: int | None = None, *, nice: int = 0) -> WorkerPool:
+        n = _resolve_workers(workers)
+        with self._lock:
+            pool = self._pool
+            if pool is not None and (pool.failure is not None or pool._closed or pool.n_workers != n
+                                     or pool.nice != nice):
+                self._pool = None
+                pool.shutdown(wait=False, cancel_futures=True)
+                pool = None
+            if pool is None:
+                pool = self._pool = WorkerPool(n, nice=nice)
+                self.started += 1
+            return pool
+
+    def close(self) -> None:
+        """Shut the pool down (idle workers exit; the processes are reaped)."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    @contextlib.contextmanager
+    def scope(self, *, nice: int = 0):
+        """Within the block, :func:`job_pool` in this thread takes its pool from this keeper (the pool
+        stays running afterwards: :meth:`close` ends it)."""
+        previous = getattr(_KEEPER, "value", None)
+        _KEEPER.value = (self, nice)
+        try:
+            yield self
+        finally:
+            _KEEPER.value = previous
+
+
+_KEEPER = threading.local()  # (PoolKeeper, nice) of the running scope in this thread
+
+
+def job_pool(workers: int | None = None) -> tuple:
+    """``(pool, owned)`` for a job's chunks: the pool of the :meth:`PoolKeeper.scope` this thread is in
+    (``owned`` False: the caller must not shut it down; killing it on cancel is fine), else a new
+    :class:`WorkerPool` of ``workers`` processes that the caller owns."""
+    current = getattr(_KEEPER, "value", None)
+    if current is not None:
+        keeper, nice = current
+        return keeper.get(workers, nice=nice), False
+    return WorkerPool(workers), True
 
 
 # ------------------------------------------------------------------------------------ the driver

@@ -268,3 +268,27 @@ def test_any_executor_a_process_pool_gets_the_scene_on_demand(scenes, receivers,
 
     with cf.ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as ex:
         _same_bits(_all(scenes["constant"], receivers, executor=ex), serial["constant"])
+
+
+def test_a_pool_keeper_gives_one_pool_to_many_jobs_and_leaves_no_process(scenes, receivers, serial):
+    """PoolKeeper: the jobs in its scope share one pool (the scene is sent once), a cancel's kill is
+    replaced by a new pool on the next job, close() reaps every worker; nice lowers the workers'
+    priority."""
+    p, n, _ = receivers
+    keeper = parallel.PoolKeeper()
+    before = _children()
+    with keeper.scope(nice=3):
+        first, owned = parallel.job_pool(2)
+        again, owned_again = parallel.job_pool(2)
+        assert first is again and not owned and not owned_again and keeper.started == 1
+        _same_bits(_all(scenes["constant"], receivers, executor=first), serial["constant"])
+        mine = os.nice(0)
+        assert first.submit(os.nice, 0).result(timeout=30) == min(19, mine + 3)
+        first.kill()  # what a cancelled job does to the pool
+        replaced, _ = parallel.job_pool(2)
+        assert replaced is not first and replaced.failure is None and keeper.started == 2
+    own, owned = parallel.job_pool(1)  # outside a scope: the caller's own pool
+    assert owned and own is not keeper.pool
+    own.shutdown()
+    keeper.close()
+    assert keeper.pool is None and _children() == before
