@@ -428,7 +428,7 @@ def _compute_on_workers(exported, points, normals, limit, ck, todo, workers, pro
                 raise Cancelled("local pass cancelled")
     except BaseException:
         stop.set()
-        pool.kill()
+        pool.kill(reap=owned)  # a kept pool's owner reaps it (Esc does not wait for niced workers to exit)
         threads.shutdown(wait=True, cancel_futures=True)
         raise
     threads.shutdown(wait=True)

@@ -82,9 +82,10 @@ class LocalPassRun:
                 return False
 
     def close(self):
-        """Stop between two chunks: nothing of the job has been written; no worker is left."""
+        """Stop between two chunks: nothing of the job has been written; the workers are killed at once
+        (reaped in the background: Esc does not wait for them)."""
         self.steps.close()
-        self.keeper.close()
+        self.keeper.close(wait=False)
 
     @property
     def fraction(self) -> float:

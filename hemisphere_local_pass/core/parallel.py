@@ -378,8 +378,12 @@ class WorkerPool(cf.Executor):
             while len(self._blobs) > SHARED_KEEP:
                 self._blobs.pop(next(iter(self._blobs)))
 
-    def kill(self) -> None:
-        """Stop every worker now (SIGKILL, reaped); pending and running futures are cancelled or fail."""
+    def kill(self, *, reap: bool = True) -> None:
+        """Stop every worker now (SIGKILL); pending and running futures are cancelled or fail.
+
+        ``reap``: wait until the processes have exited (False: return at once and leave that to
+        :meth:`shutdown` — a killed worker with a nice value may need a moment of CPU to exit, which a
+        job stopping for Esc should not wait for)."""
         with self._lock:
             self._closed = True
             if self._broken is None:
@@ -390,10 +394,20 @@ class WorkerPool(cf.Executor):
                 w.task = None
         for fut, *_ in pending:
             fut.cancel()
-        self._finalizer()  # kills and reaps once
+        if reap:
+            self._finalizer()  # kills and reaps once
+        else:
+            for w in self._workers:
+                if w.proc.poll() is None:
+                    try:
+                        w.proc.kill()
+                    except OSError:
+                        pass
         for fut, _ in tasks:
             if not fut.done():
                 fut.set_exception(Cancelled("the worker pool was stopped"))
+        if not reap:
+            return
         for w in self._workers:
             if w.thread is not None and w.thread is not threading.current_thread():
                 w.thread.join(timeout=2)
@@ -589,12 +603,18 @@ class PoolKeeper:
                 self.started += 1
             return pool
 
-    def close(self) -> None:
-        """Shut the pool down (idle workers exit; the processes are reaped)."""
+    def close(self, *, wait: bool = True) -> None:
+        """Shut the pool down (idle workers exit; the processes are reaped). ``wait=False``: reap them
+        in a background thread (an Esc handler returns at once; the processes are gone moments later)."""
         with self._lock:
             pool, self._pool = self._pool, None
-        if pool is not None:
+        if pool is None:
+            return
+        if wait:
             pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            threading.Thread(target=pool.shutdown, kwargs={"wait": True, "cancel_futures": True}, daemon=True,
+                             name="hlp-pool-reaper").start()
 
     @contextlib.contextmanager
     def scope(self, *, nice: int = 0):
@@ -705,7 +725,8 @@ def run_chunks(
 
     ``cancel()`` is polled before each chunk and every :data:`POLL_SECONDS` while waiting; when it
     returns True (or on KeyboardInterrupt) pending chunks are dropped, a :class:`WorkerPool` is killed
-    (also a caller's: it cannot be used afterwards), and :class:`Cancelled` is raised.
+    (also a caller's: it cannot be used afterwards; its processes are reaped when the caller shuts it
+    down, this call's own pool at once), and :class:`Cancelled` is raised.
 
     Raises:
         Cancelled; WorkerDied; whatever ``fn`` raised in a worker.
@@ -766,7 +787,7 @@ def run_chunks(
         for fut in inflight:
             fut.cancel()
         if isinstance(pool, WorkerPool):
-            pool.kill()
+            pool.kill(reap=own)
         elif own:
             pool.shutdown(wait=False, cancel_futures=True)
         if isinstance(exc, WorkerDied):
