@@ -253,14 +253,19 @@ def session():
     ok = yield from wait(lambda: modal._running and modal._running[0].done > 0, 120, 0.05)
     done_at_esc = modal._running[0].done if modal._running else None
     total = modal._running[0].total if modal._running else None
+    pool = modal._running[0].keeper.pool if modal._running else None
+    bake_pids = pool.pids if pool is not None else []
     cx, cy = to_screen(view.x + view.width // 2, view.y + view.height // 2)
     xdotool("mousemove", cx, cy)
     t_esc = time.perf_counter()
     xdotool("key", "Escape")
     cancelled = yield from wait(lambda: not modal._running, 10, 0.02)
+    t_cancelled = time.perf_counter()
+    yield from wait(lambda: not any(alive(pid) for pid in bake_pids), 5, 0.1)  # reaped in the background
     # latency: Esc pressed -> the modal run had stopped (its operator returned CANCELLED)
     log("esc", running_before=ok, done_at_esc=done_at_esc, total=total, cancelled=cancelled,
-        unchanged=mesh_state(scene) == before, latency=time.perf_counter() - t_esc, settle=settle_bake)
+        unchanged=mesh_state(scene) == before, latency=t_cancelled - t_esc, settle=settle_bake, workers=len(bake_pids),
+        workers_left=[pid for pid in bake_pids if alive(pid)])
 
     # 3b. F12 with the engine, Esc mid-render: test_break() stops it, the finished bands stay
     from hemisphere_local_pass.blender import engine

@@ -120,9 +120,10 @@ class JobReport:
 
 @dataclass
 class JobStep:
-    """What :func:`local_pass_steps` yields after every finished chunk: ``done`` of ``total``
-    receivers (points) evaluated so far. Between two steps nothing of Blender's data is touched, so
-    a modal operator can return to the event loop there (``blender/modal.py``)."""
+    """What :func:`local_pass_steps` yields after every finished chunk (and, on workers, at every poll
+    of the pool): ``done`` of ``total`` receivers (points) evaluated so far. Between two steps nothing
+    of Blender's data is touched, so a modal operator can return to the event loop there
+    (``blender/modal.py``)."""
 
     done: int
     total: int

@@ -64,6 +64,7 @@ def test_real_window_panels_modal_job_esc_and_inspector(blender, xvfb_run, blend
     assert esc["running_before"] and esc["cancelled"] and esc["unchanged"], esc
     assert esc["done_at_esc"] < esc["total"], esc
     assert esc["latency"] <= 1.0, esc
+    assert esc["workers"] >= 1 and esc["workers_left"] == [], esc  # the run's workers are gone after Esc
 
     f12 = info["f12_esc"]  # F12, then Esc: the render stops within a second of the key press, bands kept
     assert f12["started"] and f12["stopped"] and f12["cancelled"], f12
