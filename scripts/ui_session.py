@@ -134,6 +134,15 @@ def mesh_state(scene):
     return out
 
 
+def alive(pid) -> bool:
+    """Whether process ``pid`` exists and is not a zombie (Linux /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 def wait(predicate, timeout, step=0.1):
     """Yield until predicate() (or the timeout); returns via StopIteration whether it came true."""
     end = time.time() + timeout
@@ -142,6 +151,24 @@ def wait(predicate, timeout, step=0.1):
             return False
         yield step
     return True
+
+
+def settled(seconds=1.5, timeout=40.0):
+    """Yield until the 3D viewport has not redrawn for ``seconds`` (returns the time waited).
+
+    With software OpenGL under load a viewport redraw takes 1-2 s, and after a change (the engine, the
+    resolution, the selection) Blender redraws it once per anti-aliasing sample (8 by default); its main
+    thread reads key events only between redraws, so an Esc pressed then waits for them (Blender's, not
+    the job's: docs/blender-ui.md). A user pressing Esc on a render looks at a settled window."""
+    start = time.perf_counter()
+    seen, changed = COUNTS["view3d"], start
+    while time.perf_counter() - start < timeout:
+        if COUNTS["view3d"] != seen:
+            seen, changed = COUNTS["view3d"], time.perf_counter()
+        elif time.perf_counter() - changed >= seconds:
+            break
+        yield 0.05
+    return time.perf_counter() - start
 
 
 def session():
@@ -220,17 +247,25 @@ def session():
     for ob in scene.objects:
         ob.select_set(ob.type == 'MESH')
     before = mesh_state(scene)
+    settle_bake = yield from settled()
     with bpy.context.temp_override(window=win, area=props, region=next(r for r in props.regions if r.type == 'WINDOW')):
         bpy.ops.hlp.bake_vertex_colours('INVOKE_DEFAULT')
     ok = yield from wait(lambda: modal._running and modal._running[0].done > 0, 120, 0.05)
     done_at_esc = modal._running[0].done if modal._running else None
     total = modal._running[0].total if modal._running else None
+    pool = modal._running[0].keeper.pool if modal._running else None
+    bake_pids = pool.pids if pool is not None else []
     cx, cy = to_screen(view.x + view.width // 2, view.y + view.height // 2)
     xdotool("mousemove", cx, cy)
+    t_esc = time.perf_counter()
     xdotool("key", "Escape")
-    cancelled = yield from wait(lambda: not modal._running, 10, 0.05)
+    cancelled = yield from wait(lambda: not modal._running, 10, 0.02)
+    t_cancelled = time.perf_counter()
+    yield from wait(lambda: not any(alive(pid) for pid in bake_pids), 5, 0.1)  # reaped in the background
+    # latency: Esc pressed -> the modal run had stopped (its operator returned CANCELLED)
     log("esc", running_before=ok, done_at_esc=done_at_esc, total=total, cancelled=cancelled,
-        unchanged=mesh_state(scene) == before)
+        unchanged=mesh_state(scene) == before, latency=t_cancelled - t_esc, settle=settle_bake, workers=len(bake_pids),
+        workers_left=[pid for pid in bake_pids if alive(pid)])
 
     # 3b. F12 with the engine, Esc mid-render: test_break() stops it, the finished bands stay
     from hemisphere_local_pass.blender import engine
@@ -239,10 +274,11 @@ def session():
     scene.render.engine = 'HEMISPHERE_LOCAL_PASS'
     scene.render.resolution_x = scene.render.resolution_y = 3 * ARGS.resolution
     engine.BAND_PIXELS = 4 * ARGS.resolution * 3  # 4 rows per band: several partial results
+    settle = yield from settled()
     engine.status.clear()
     with bpy.context.temp_override(window=win, area=view):
         bpy.ops.render.render('INVOKE_DEFAULT')
-    ok = yield from wait(lambda: engine.status.get("done", 0) > 0, 120, 0.05)
+    ok = yield from wait(lambda: engine.status.get("bands", 0) >= 1, 120, 0.05)  # a finished band to keep
     xdotool("mousemove", cx, cy)
     t_esc = time.perf_counter()
     xdotool("key", "Escape")
@@ -255,6 +291,8 @@ def session():
 
     stopped = yield from wait(job_gone, 60, 0.02)
     gaps = np.diff([t_sent] + ticks)
+    pids = [pid for pool in engine.status.get("worker_pids", []) for pid in pool]
+    yield from wait(lambda: not any(alive(pid) for pid in pids), 5, 0.1)
     # latency: Esc pressed -> the job had stopped for it (engine.status["cancelled_at"]);
     # break_seen: -> test_break() first True (Blender delivering Esc); stop: test_break's first True ->
     # the render result ended (ours); job_seen: -> this main-thread timer saw the render job gone
@@ -263,7 +301,8 @@ def session():
     log("f12_esc", started=ok, stopped=stopped, job_seen=time.perf_counter() - t_esc, xdotool=t_sent - t_esc,
         latency=st.get("cancelled_at", nan) - t_esc, break_seen=(st.get("break_at") or nan) - t_esc,
         stop=st.get("ended_at", nan) - (st.get("break_at") or nan), timer_ticks=len(ticks),
-        timer_max_gap=float(gaps.max()) if len(gaps) else nan, **st)
+        timer_max_gap=float(gaps.max()) if len(gaps) else nan, settle=settle,
+        workers_left=[pid for pid in pids if alive(pid)], **st)
     scene.render.engine = 'BLENDER_EEVEE'
     scene.render.resolution_x = scene.render.resolution_y = ARGS.resolution
 

@@ -24,8 +24,18 @@ one ``run_local_pass(region=band)`` on one export of the render depsgraph, writt
 ``test_break()`` (latched: True from its first True on) is the job's ``cancel`` callback, polled by
 the job between chunks, by the core before each of its chunks and by the waiting threads of the worker
 pool every ``core.parallel.POLL_SECONDS``: the render ends within ~0.05 s of test_break's first True
-and keeps the finished bands (``tests/blender/test_engine.py``). How soon Blender makes test_break
-True after the Esc key press is Blender's (measured under Blender 3.4 in ``scripts/ui_session.py``).
+and keeps the finished bands (``tests/blender/test_engine.py``).
+
+One worker pool serves every band of a render and every frame of an animation (``_KEEPER``, a
+:class:`core.parallel.PoolKeeper`); it is shut down when the render job ends (``render_complete`` /
+``render_cancel`` handlers) and when the add-on is unregistered, so no worker process outlives the job.
+
+Esc in a window: Blender sets its break flag only when its main thread next reads window events, which
+it does between redraws; with software OpenGL (llvmpipe) a redraw is CPU work of the window's threads
+and takes 0.3-2 s on a loaded machine. So the engine asks for as few redraws as it can
+(``update_stats``/``update_progress``/``update_result`` at most every ``UPDATE_SECONDS``; each one makes
+Blender redraw the status bar and timeline) and, with a window, runs its workers ``WORKER_NICE`` below
+Blender so that they do not take the CPU the window needs (docs/blender-ui.md has the measurements).
 """
 
 from __future__ import annotations
@@ -54,6 +64,14 @@ PASSES = (
 #: Pixels per band (a band is whole rows): small enough that partial results come every second or so.
 BAND_PIXELS = 4096
 
+#: Least seconds between two progress/statistics updates and between two partial results: each makes
+#: Blender's window redraw (status bar, timeline, Image Editor), during which it does not see Esc.
+UPDATE_SECONDS = 1.0
+
+#: Nice value added to the worker processes of a render with a window (0 in background mode: a farm's
+#: ``blender -b`` keeps its normal priority).
+WORKER_NICE = 10
+
 #: The running / last render, for scripts and tests: ``done``, ``total`` points, ``cancelled``,
 #: ``seconds``, ``bands`` finished of ``n_bands``, ``break_at`` (``time.perf_counter()`` when
 #: test_break() first returned True), ``cancelled_at`` (when the job had stopped for it), ``ended_at``
@@ -64,6 +82,33 @@ status: dict = {}
 #: adaptive job provides them; absent keys mean an exact job (error 0, every sample exact).
 _ERROR_KEYS = ("error_estimate", "error")
 _EXACT_KEYS = ("exact_sample", "exact_samples", "exact")
+
+
+def _keeper():
+    from ..core.parallel import PoolKeeper
+
+    global _KEEPER
+    if _KEEPER is None:
+        _KEEPER = PoolKeeper()
+    return _KEEPER
+
+
+#: The worker pool of the running render job (bands and frames); None until the first render.
+_KEEPER = None
+
+
+def close_pool() -> None:
+    """Shut the render's worker pool down (its processes exit and are reaped): the end of a render job,
+    unregistering."""
+    if _KEEPER is not None:
+        _KEEPER.close()
+
+
+@bpy.app.handlers.persistent
+def _end_of_job(*_args):
+    """``render_complete`` / ``render_cancel``: the render job (one frame, or every frame of an
+    animation) has ended; its worker pool goes."""
+    close_pool()
 
 
 def band_windows(window, band_pixels: int | None = None) -> list:
@@ -149,14 +194,16 @@ class _Stats:
 
     def finish_band(self, size):
         self.base += size
-        self.show(self.base, force=True)
+        self.show(self.base)
 
-    def show(self, done, force=False):
+    def show(self, done):
+        """``status`` now; Blender's statistics and progress at most every ``UPDATE_SECONDS`` (each
+        update redraws the window's status bar and timeline)."""
+        status.update(done=int(done), total=self.total)
         now = time.perf_counter()
-        if not force and now - self.last < 0.25:
+        if now - self.last < UPDATE_SECONDS:
             return
         self.last = now
-        status.update(done=int(done), total=self.total)
         elapsed = now - self.start
         rate = done / elapsed if elapsed > 0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else math.nan
@@ -224,7 +271,15 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
         start = time.perf_counter()
         status.clear()
         status.update(done=0, total=n * k * k, cancelled=False, bands=0, n_bands=len(bands), seconds=0.0,
-                      break_at=None)
+                      break_at=None, worker_pids=[], result_updates=0)
+        pending = set()  # passes with finished bands not yet written into the result
+        shown = start  # when the last partial result was sent
+
+        def write_pending():
+            for name in sorted(pending):
+                if targets.get(name) is not None:
+                    targets[name].rect = rects[name]
+            pending.clear()
 
         def stop():
             """test_break(), latched: once Esc is seen every later poll (core chunks, workers' waits)
@@ -233,37 +288,48 @@ class HLP_RenderEngine(bpy.types.RenderEngine):
                 status["break_at"] = time.perf_counter()
             return status["break_at"] is not None
 
+        keeper = _keeper()
         try:
-            for band in bands:
-                if stop():
-                    status.update(cancelled=True, cancelled_at=time.perf_counter())
-                    break
-                size_b = (band[2] - band[0]) * (band[3] - band[1]) * k * k
-                try:
-                    report = run_local_pass(scene, mode="pixels", region=band, output=None, image=False,
-                                            preview=False, samples=k, exported=exported, depsgraph=depsgraph,
-                                            view_layer=view_layer, progress=stats.band(size_b),
-                                            cancel=stop, **kwargs)
-                except Cancelled:  # Esc: keep the finished bands
-                    status.update(cancelled=True, cancelled_at=time.perf_counter())
-                    break
-                except ValueError as ex:
-                    self._fail(str(ex))
-                    break
-                points += report.points
-                worst = max(worst, report.max_form_factor_error)
-                arrays = pass_arrays(report.result, exported.object_pass_index, transparent)
-                rows = np.arange(band[1], band[3]) - window[1]
-                cols = np.arange(band[0], band[2]) - window[0]
-                flat = (rows[:, None] * size[0] + cols[None, :]).reshape(-1)  # result rect rows, bottom first
-                for name, values in arrays.items():
-                    rects[name][flat] = values
-                    if targets.get(name) is not None:
-                        targets[name].rect = rects[name]
-                self.update_result(result)  # the finished band appears in the Image Editor
-                stats.finish_band(size_b)
-                status["bands"] += 1
+            # one pool for every band (and, until the job ends, every frame); below Blender with a window
+            with keeper.scope(nice=0 if bpy.app.background else WORKER_NICE):
+                for band in bands:
+                    if stop():
+                        status.update(cancelled=True, cancelled_at=time.perf_counter())
+                        break
+                    size_b = (band[2] - band[0]) * (band[3] - band[1]) * k * k
+                    try:
+                        report = run_local_pass(scene, mode="pixels", region=band, output=None, image=False,
+                                                preview=False, samples=k, exported=exported, depsgraph=depsgraph,
+                                                view_layer=view_layer, progress=stats.band(size_b),
+                                                cancel=stop, **kwargs)
+                    except Cancelled:  # Esc: keep the finished bands
+                        status.update(cancelled=True, cancelled_at=time.perf_counter())
+                        break
+                    except ValueError as ex:
+                        self._fail(str(ex))
+                        break
+                    finally:
+                        if keeper.pool is not None and keeper.pool.pids not in status["worker_pids"]:
+                            status["worker_pids"].append(keeper.pool.pids)
+                    points += report.points
+                    worst = max(worst, report.max_form_factor_error)
+                    arrays = pass_arrays(report.result, exported.object_pass_index, transparent)
+                    rows = np.arange(band[1], band[3]) - window[1]
+                    cols = np.arange(band[0], band[2]) - window[0]
+                    flat = (rows[:, None] * size[0] + cols[None, :]).reshape(-1)  # result rect rows, bottom first
+                    for name, values in arrays.items():
+                        rects[name][flat] = values
+                        pending.add(name)
+                    status["bands"] += 1
+                    now = time.perf_counter()
+                    if now - shown >= UPDATE_SECONDS and status["bands"] < len(bands):
+                        write_pending()
+                        self.update_result(result)  # the finished bands appear in the Image Editor
+                        status["result_updates"] += 1
+                        shown = now
+                    stats.finish_band(size_b)
         finally:
+            write_pending()  # every finished band, also after Esc
             self.end_result(result)
             status["ended_at"] = time.perf_counter()
             status["seconds"] = status["ended_at"] - start
@@ -357,9 +423,16 @@ def register():
             engines.add(ENGINE_ID)
     if hasattr(bpy.types, "RENDER_PT_context"):
         bpy.types.RENDER_PT_context.append(draw_render_context)
+    for handlers in (bpy.app.handlers.render_complete, bpy.app.handlers.render_cancel):
+        if _end_of_job not in handlers:
+            handlers.append(_end_of_job)
 
 
 def unregister():
+    for handlers in (bpy.app.handlers.render_complete, bpy.app.handlers.render_cancel):
+        while _end_of_job in handlers:
+            handlers.remove(_end_of_job)
+    close_pool()
     if hasattr(bpy.types, "RENDER_PT_context"):
         bpy.types.RENDER_PT_context.remove(draw_render_context)
     for panel in compatible_panels():

@@ -8,6 +8,11 @@ status bar shows a progress bar (``UILayout.progress`` on 4.0+, a percentage sli
 before the job has written anything, so the scene stays exactly as it was. In background mode
 (``blender -b``, the bpy module) timers never fire and ``invoke`` runs the job synchronously.
 
+With workers the job yields at every poll of its pool (``core.parallel.POLL_SECONDS``), not only when a
+chunk ends, so a tick returns to the event loop within ~``TICK_BUDGET`` even while chunks compute; the
+run's workers are ``WORKER_NICE`` below Blender (the window's drawing, which is CPU work with software
+OpenGL, and its Esc handling come first) and end with the run.
+
 When a job finishes, its result is made visible: pixels open in an Image Editor, vertex colours
 become the active colour attribute with the 3D viewports in Attribute colour mode.
 """
@@ -25,6 +30,8 @@ __all__ = ["HLP_OT_bake_vertex_colours", "LocalPassRun", "register", "unregister
 TICK_BUDGET = 0.1
 #: Timer interval (s).
 TICK_INTERVAL = 0.02
+#: Nice value added to the run's worker processes.
+WORKER_NICE = 10
 
 #: Events a running job lets through to the viewports (navigation only: the scene must not change
 #: under the job, as Blender's own render jobs lock the interface).
@@ -44,8 +51,10 @@ class LocalPassRun:
     """
 
     def __init__(self, kwargs: dict):
+        from ..core.parallel import PoolKeeper
         from .job import local_pass_steps
 
+        self.keeper = PoolKeeper()  # the run's one worker pool, started by its first chunks
         self.steps = local_pass_steps(**kwargs)
         self.mode = kwargs.get("mode", "pixels")
         self.done = 0
@@ -58,18 +67,25 @@ class LocalPassRun:
         end = time.perf_counter() + budget
         while True:
             try:
-                step = next(self.steps)
+                with self.keeper.scope(nice=WORKER_NICE):
+                    step = next(self.steps)
             except StopIteration as stop:
                 self.report = stop.value
                 self.done = self.total = getattr(self.report, "points", self.total)
+                self.keeper.close()
                 return True
+            except BaseException:
+                self.keeper.close()
+                raise
             self.done, self.total = step.done, step.total
             if time.perf_counter() >= end:
                 return False
 
     def close(self):
-        """Stop between two chunks: nothing of the job has been written."""
+        """Stop between two chunks: nothing of the job has been written; the workers are killed at once
+        (reaped in the background: Esc does not wait for them)."""
         self.steps.close()
+        self.keeper.close(wait=False)
 
     @property
     def fraction(self) -> float:

@@ -17,16 +17,16 @@ def compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog
     process (so the same bits), several at once (one parent thread each, which only waits), results
     saved in this thread as they finish. ``progress`` and ``cancel`` run in this thread only (they may
     touch bpy); cancel, Ctrl-C, an error or closing the generator kill the pool at once. A generator:
-    yields a :class:`JobStep` whenever chunks finished (as :func:`.receiver_chunks.compute_chunks`)."""
+    yields a :class:`JobStep` at every poll (``POLL_SECONDS``), finished chunks or not."""
     import concurrent.futures as cf
     import threading
 
     from ..core import Cancelled
-    from ..core.parallel import POLL_SECONDS, WorkerDied, WorkerPool
+    from ..core.parallel import POLL_SECONDS, WorkerDied, job_pool
 
     m, chunk = len(points), ck.chunk
     stop = threading.Event()
-    pool = WorkerPool(workers)
+    pool, owned = job_pool(workers)  # the caller's kept pool (a render's bands, frames) or one for this job
 
     def one(c):
         s, e = c * chunk, min(m, (c + 1) * chunk)
@@ -51,14 +51,14 @@ def compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog
                 ck.done[c] = True
                 ck.save()
                 prog.advance(e - s)
-            if finished:
-                yield JobStep(prog.base, m)  # chunk boundaries: the caller may return to Blender's event loop
+            yield JobStep(prog.base, m)  # every poll: a modal caller returns to Blender's event loop (Esc)
             if cancel is not None and cancel():
                 raise Cancelled("local pass cancelled")
     except BaseException:
         stop.set()
-        pool.kill()
+        pool.kill(reap=owned)  # a kept pool's owner reaps it (Esc does not wait for niced workers to exit)
         threads.shutdown(wait=True, cancel_futures=True)
         raise
     threads.shutdown(wait=True)
-    pool.shutdown(wait=True)
+    if owned:
+        pool.shutdown(wait=True)

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures as cf
+import contextlib
 import itertools
 import os
 import pickle
@@ -53,7 +54,8 @@ import uuid
 import weakref
 from collections.abc import Callable, Sequence
 
-__all__ = ["Cancelled", "WorkerDied", "WorkerPool", "default_workers", "run_chunks", "worker_python"]
+__all__ = ["Cancelled", "PoolKeeper", "WorkerDied", "WorkerPool", "default_workers", "job_pool", "run_chunks",
+           "worker_python"]
 
 #: shared objects (scenes) a worker keeps; older ones are dropped (bounded worker memory)
 SHARED_KEEP = 2
@@ -195,6 +197,9 @@ def _worker_main() -> None:
     os.dup2(null, 0)
     os.close(null)
     parent = int(os.environ.get("HLP_WORKER_PARENT", "0")) or os.getppid()
+    nice = int(os.environ.get("HLP_WORKER_NICE", "0") or 0)
+    if nice > 0 and hasattr(os, "nice"):
+        os.nice(nice)  # below the interactive parent: its window keeps the CPU it needs to draw and see Esc
     if os.name != "nt":
         threading.Thread(target=_watch_parent, args=(parent,), daemon=True, name="hlp-parent-watch").start()
     import numpy
@@ -309,10 +314,14 @@ class WorkerPool(cf.Executor):
     Args:
         workers: processes (None or 0: :func:`default_workers`).
         python: the interpreter (default :func:`worker_python`).
+        nice: added to the workers' nice value (``os.nice``; 0: none): an interactive parent (Blender's
+            window) gives its workers a lower priority so that its own drawing and event handling — with
+            software OpenGL, CPU work of the window's threads — is not starved by them.
     """
 
-    def __init__(self, workers: int | None = None, *, python: str | None = None):
+    def __init__(self, workers: int | None = None, *, python: str | None = None, nice: int = 0):
         self.n_workers = _resolve_workers(workers)
+        self.nice = int(nice)
         self.python = python or worker_python()
         self._lock = threading.RLock()
         self._pending: collections.deque = collections.deque()
@@ -324,6 +333,7 @@ class WorkerPool(cf.Executor):
         directory = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         env = dict(os.environ)
         env["HLP_WORKER_PARENT"] = str(os.getpid())
+        env["HLP_WORKER_NICE"] = str(max(0, self.nice))
         # The workers inherit this process's BLAS settings on purpose (no OPENBLAS_NUM_THREADS=1): the
         # OpenBLAS of numpy 1.24 splits a large matrix product differently with another thread count
         # and the last bit of a result moves (seen in linear_radiance's quadrature); the core's products
@@ -368,8 +378,12 @@ class WorkerPool(cf.Executor):
             while len(self._blobs) > SHARED_KEEP:
                 self._blobs.pop(next(iter(self._blobs)))
 
-    def kill(self) -> None:
-        """Stop every worker now (SIGKILL, reaped); pending and running futures are cancelled or fail."""
+    def kill(self, *, reap: bool = True) -> None:
+        """Stop every worker now (SIGKILL); pending and running futures are cancelled or fail.
+
+        ``reap``: wait until the processes have exited (False: return at once and leave that to
+        :meth:`shutdown` — a killed worker with a nice value may need a moment of CPU to exit, which a
+        job stopping for Esc should not wait for)."""
         with self._lock:
             self._closed = True
             if self._broken is None:
@@ -380,10 +394,20 @@ class WorkerPool(cf.Executor):
                 w.task = None
         for fut, *_ in pending:
             fut.cancel()
-        self._finalizer()  # kills and reaps once
+        if reap:
+            self._finalizer()  # kills and reaps once
+        else:
+            for w in self._workers:
+                if w.proc.poll() is None:
+                    try:
+                        w.proc.kill()
+                    except OSError:
+                        pass
         for fut, _ in tasks:
             if not fut.done():
                 fut.set_exception(Cancelled("the worker pool was stopped"))
+        if not reap:
+            return
         for w in self._workers:
             if w.thread is not None and w.thread is not threading.current_thread():
                 w.thread.join(timeout=2)
@@ -543,6 +567,81 @@ class WorkerPool(cf.Executor):
                 fut.set_exception(exc)
 
 
+# ------------------------------------------------------------------------------------ one pool for many jobs
+class PoolKeeper:
+    """One :class:`WorkerPool` kept for a sequence of jobs (the bands of a render, the frames of an
+    animation) instead of one pool per job: workers start once and keep the scene they were sent
+    (:data:`SHARED_KEEP`), so a later job on the same scene sends nothing but its chunks.
+
+    :meth:`get` returns the live pool, starting one when there is none, when the last one was stopped
+    (a cancel kills it) or when another size or nice value is asked for; :meth:`close` shuts it down
+    and reaps its processes (none is left behind). Jobs pick the keeper up through :meth:`scope`.
+    Thread-safe.
+    """
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._pool: WorkerPool | None = None
+        self.started = 0  # pools started so far (tests, diagnostics)
+
+    @property
+    def pool(self) -> WorkerPool | None:
+        """The current pool (None: none started, or closed)."""
+        return self._pool
+
+    def get(self, workers: int | None = None, *, nice: int = 0) -> WorkerPool:
+        n = _resolve_workers(workers)
+        with self._lock:
+            pool = self._pool
+            if pool is not None and (pool.failure is not None or pool._closed or pool.n_workers != n
+                                     or pool.nice != nice):
+                self._pool = None
+                pool.shutdown(wait=False, cancel_futures=True)
+                pool = None
+            if pool is None:
+                pool = self._pool = WorkerPool(n, nice=nice)
+                self.started += 1
+            return pool
+
+    def close(self, *, wait: bool = True) -> None:
+        """Shut the pool down (idle workers exit; the processes are reaped). ``wait=False``: reap them
+        in a background thread (an Esc handler returns at once; the processes are gone moments later)."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        if wait:
+            pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            threading.Thread(target=pool.shutdown, kwargs={"wait": True, "cancel_futures": True}, daemon=True,
+                             name="hlp-pool-reaper").start()
+
+    @contextlib.contextmanager
+    def scope(self, *, nice: int = 0):
+        """Within the block, :func:`job_pool` in this thread takes its pool from this keeper (the pool
+        stays running afterwards: :meth:`close` ends it)."""
+        previous = getattr(_KEEPER, "value", None)
+        _KEEPER.value = (self, nice)
+        try:
+            yield self
+        finally:
+            _KEEPER.value = previous
+
+
+_KEEPER = threading.local()  # (PoolKeeper, nice) of the running scope in this thread
+
+
+def job_pool(workers: int | None = None) -> tuple:
+    """``(pool, owned)`` for a job's chunks: the pool of the :meth:`PoolKeeper.scope` this thread is in
+    (``owned`` False: the caller must not shut it down; killing it on cancel is fine), else a new
+    :class:`WorkerPool` of ``workers`` processes that the caller owns."""
+    current = getattr(_KEEPER, "value", None)
+    if current is not None:
+        keeper, nice = current
+        return keeper.get(workers, nice=nice), False
+    return WorkerPool(workers), True
+
+
 # ------------------------------------------------------------------------------------ the driver
 _PAYLOADS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # key -> (weakrefs of shared, token, blob)
 _SCATTERED: dict = {}  # (id(client), token) -> the dask future of the blob (the latest one)
@@ -626,7 +725,8 @@ def run_chunks(
 
     ``cancel()`` is polled before each chunk and every :data:`POLL_SECONDS` while waiting; when it
     returns True (or on KeyboardInterrupt) pending chunks are dropped, a :class:`WorkerPool` is killed
-    (also a caller's: it cannot be used afterwards), and :class:`Cancelled` is raised.
+    (also a caller's: it cannot be used afterwards; its processes are reaped when the caller shuts it
+    down, this call's own pool at once), and :class:`Cancelled` is raised.
 
     Raises:
         Cancelled; WorkerDied; whatever ``fn`` raised in a worker.
@@ -687,7 +787,7 @@ def run_chunks(
         for fut in inflight:
             fut.cancel()
         if isinstance(pool, WorkerPool):
-            pool.kill()
+            pool.kill(reap=own)
         elif own:
             pool.shutdown(wait=False, cancel_futures=True)
         if isinstance(exc, WorkerDied):

@@ -7,6 +7,7 @@ import importlib
 import importlib.util
 import os
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -203,7 +204,6 @@ def test_bands_cover_the_window_once(hlp):
 def test_esc_stops_within_a_second_and_keeps_the_bands(hlp, monkeypatch):
     """test_break() turning True mid-render (Esc) ends the render in under a second, measured from the
     first True to the end of the result, with the worker pool of the default settings; finished bands stay."""
-    import time
 
     scene = build_box(48)
     scene.render.engine = ENGINE_ID
@@ -227,3 +227,45 @@ def test_esc_stops_within_a_second_and_keeps_the_bands(hlp, monkeypatch):
     latency = status["ended_at"] - status["break_at"]
     print(f"stop latency {latency:.3f} s")
     assert latency < 1.0, status
+
+
+def _alive(pid) -> bool:
+    """Whether process ``pid`` exists and is not a zombie (Linux /proc)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_one_worker_pool_for_every_band_and_frame_and_none_left(hlp, tmp_path):
+    """An animation of 2 frames x 4 bands on the default workers: one pool (the same processes) computes
+    every band of both frames; when the render job ends no worker process is left."""
+    scene = build_box(48)
+    scene.render.engine = ENGINE_ID
+    engine = hlp["engine"]
+    old_band = engine.BAND_PIXELS
+    engine.BAND_PIXELS = 48 * 12  # 4 bands of 576 points: each on the workers
+    scene.frame_start, scene.frame_end = 1, 2
+    scene.render.filepath = str(tmp_path / "frame_")
+    scene.render.image_settings.file_format = "PNG"
+    frames = []
+
+    def post(*_args):
+        frames.append(dict(engine.status))
+
+    bpy.app.handlers.render_post.append(post)
+    try:
+        assert bpy.ops.render.render(animation=True) == {'FINISHED'}
+    finally:
+        bpy.app.handlers.render_post.remove(post)
+        engine.BAND_PIXELS = old_band
+    assert len(frames) == 2 and all(f["bands"] == f["n_bands"] == 4 for f in frames), frames
+    pools = [tuple(p) for f in frames for p in f["worker_pids"]]
+    assert len(set(pools)) == 1 and len(pools[0]) >= 1, pools  # one pool, reused by every band and frame
+    assert engine._KEEPER.pool is None  # shut down at render_complete
+    deadline = time.monotonic() + 5
+    while any(_alive(pid) for pid in pools[0]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(pid) for pid in pools[0]), pools
+    assert (tmp_path / "frame_0001.png").is_file() and (tmp_path / "frame_0002.png").is_file()

@@ -56,11 +56,14 @@ def test_steps_equal_run_local_pass_and_close_changes_nothing(hlp):
     kwargs.update(mode="pixels", output=None, image=False)
     run = modal.LocalPassRun(kwargs)
     ticks = 0
-    while not run.advance(budget=0.0):  # one chunk per tick
+    done = []
+    while not run.advance(budget=0.0):  # one step per tick: a chunk, or (workers) a poll of the pool
         ticks += 1
-        assert 0 < run.done <= run.total
+        assert 0 <= run.done <= run.total and run.total > 0
         assert "points/s" in run.text() and "ETA" in run.text()
-    assert ticks >= 2, "the job must come in several chunks"
+        done.append(run.done)
+    assert done == sorted(done) and len(set(done) - {0}) >= 2, "the job must come in several chunks"
+    assert run.keeper.pool is None  # the run's workers ended with it
     direct = hlp["job"].run_local_pass(**kwargs)
     assert np.array_equal(run.report.result["radiance"], direct.result["radiance"])  # bitwise
 
@@ -71,7 +74,7 @@ def test_steps_equal_run_local_pass_and_close_changes_nothing(hlp):
     run = modal.LocalPassRun(kwargs)
     assert not run.advance(budget=0.0)
     run.close()  # Esc between two chunks
-    assert mesh_state(scene) == before
+    assert mesh_state(scene) == before and run.keeper.pool is None
 
 
 def _adaptive_threads():

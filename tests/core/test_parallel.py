@@ -168,7 +168,8 @@ def test_cancel_stops_every_worker_within_a_second(scenes, receivers):
         with pytest.raises(Cancelled):
             irradiance(scenes["linear"], big_p, big_n, budget=BUDGET, executor=pool, progress=progress, cancel=cancel)
         assert time.monotonic() - state["at"] < 1.0
-        assert not (_children() & set(pool.pids))
+        assert pool.failure is not None  # killed; the caller's shutdown (the with block) reaps it
+    assert not (_children() & set(pool.pids))
 
 
 def test_ctrl_c_stops_every_worker(scenes, receivers):
@@ -198,9 +199,9 @@ def test_a_killed_worker_fails_the_job_with_a_clear_error(scenes, receivers):
         with pytest.raises(WorkerDied, match=rf"worker process {victim} .*killed by SIGKILL"):
             form_factors(scenes["constant"], big_p, big_n, budget=BUDGET, executor=pool, progress=progress)
         assert time.monotonic() - start < 30
-        assert not (_children() & set(pool.pids))
         with pytest.raises(WorkerDied):  # the pool stays failed
             pool.submit(abs, 1)
+    assert not (_children() & set(pool.pids))  # killed by the job, reaped by the caller's shutdown
 
 
 def test_a_worker_that_exits_or_cannot_start(monkeypatch):
@@ -268,3 +269,27 @@ def test_any_executor_a_process_pool_gets_the_scene_on_demand(scenes, receivers,
 
     with cf.ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as ex:
         _same_bits(_all(scenes["constant"], receivers, executor=ex), serial["constant"])
+
+
+def test_a_pool_keeper_gives_one_pool_to_many_jobs_and_leaves_no_process(scenes, receivers, serial):
+    """PoolKeeper: the jobs in its scope share one pool (the scene is sent once), a cancel's kill is
+    replaced by a new pool on the next job, close() reaps every worker; nice lowers the workers'
+    priority."""
+    p, n, _ = receivers
+    keeper = parallel.PoolKeeper()
+    before = _children()
+    with keeper.scope(nice=3):
+        first, owned = parallel.job_pool(2)
+        again, owned_again = parallel.job_pool(2)
+        assert first is again and not owned and not owned_again and keeper.started == 1
+        _same_bits(_all(scenes["constant"], receivers, executor=first), serial["constant"])
+        mine = os.nice(0)
+        assert first.submit(os.nice, 0).result(timeout=30) == min(19, mine + 3)
+        first.kill()  # what a cancelled job does to the pool
+        replaced, _ = parallel.job_pool(2)
+        assert replaced is not first and replaced.failure is None and keeper.started == 2
+    own, owned = parallel.job_pool(1)  # outside a scope: the caller's own pool
+    assert owned and own is not keeper.pool
+    own.shutdown()
+    keeper.close()
+    assert keeper.pool is None and _children() == before
