@@ -29,7 +29,52 @@ from .scene import Scene, plane_uncertainty
 from .solids import Solids, build_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
 
-__all__ = ["Occluders", "build_occluders"]
+__all__ = ["Occluders", "VolumePairs", "build_occluders"]
+
+
+@dataclass
+class VolumePairs:
+    """The receiver-independent (merged face, volume) pairs of :func:`.visibility.coverage`, sparse.
+
+    Combination ``c = 2 s + t``: ``s = 0`` for ``occ_beyond_pos`` (a receiver behind the volume's
+    plane), 1 for ``occ_beyond_neg``; ``t = 0`` for ``occ_reach_pos`` (a receiver in front of the
+    face's plane), 1 for ``occ_reach_neg``. Pair (face f, volume o), ``o != f``, is in combination c
+    when both flags hold. ``by_face_ptr (4, n_o+1)``, ``by_face_vol[c]`` (int32): CSR lists of the
+    volumes of every face (ascending); ``by_vol_ptr (4, n_vol+1)``, ``by_vol_face[c]``: the faces of
+    every volume (ascending). Memory: 16 bytes per pair (a face and a volume, two orientations).
+    """
+
+    by_face_ptr: np.ndarray
+    by_face_vol: list
+    by_vol_ptr: np.ndarray
+    by_vol_face: list
+
+
+def _volume_pairs(beyond: tuple, reach: tuple) -> VolumePairs:
+    """:class:`VolumePairs` from the dense ``(n_o, n_vol)`` tables ``beyond = (pos, neg)``, ``reach =
+    (pos, neg)``, a block of faces at a time (temporaries of about 2**22 entries)."""
+    n_o, n_vol = beyond[0].shape
+    step = max(1, (1 << 22) // max(1, n_vol))
+    f_ptr, f_vol, v_ptr, v_face = [], [], [], []
+    for s in (0, 1):
+        for t in (0, 1):
+            rows, cols = [], []
+            for a in range(0, n_o, step):
+                blk = beyond[s][a:a + step] & reach[t][a:a + step]
+                d = np.arange(a, min(n_o, a + step))
+                blk[d - a, d] = False                          # a face never hides itself
+                r, c = np.nonzero(blk)
+                rows.append((r + a).astype(np.int32))
+                cols.append(c.astype(np.int32))
+            r = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int32)
+            c = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int32)
+            f_ptr.append(np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n_o))]))
+            f_vol.append(c)
+            order = np.argsort(c, kind="stable")               # by volume, then face
+            v_ptr.append(np.concatenate([[0], np.cumsum(np.bincount(c, minlength=n_vol))]))
+            v_face.append(r[order])
+    return VolumePairs(np.array(f_ptr, dtype=np.int64).reshape(4, n_o + 1), f_vol,
+                       np.array(v_ptr, dtype=np.int64).reshape(4, n_vol + 1), v_face)
 
 
 @dataclass
@@ -61,6 +106,7 @@ class Occluders:
             ``front_*`` the union over the solid's faces); occ_reach_pos, occ_reach_neg (n_o, n_o + n_s):
             occluder (or solid) o has a vertex strictly on the positive / negative side of occluder k's
             plane (``[k, o]``); vol_centers (n_o + n_s, 3), vol_radii: bounding spheres of all volumes.
+        vol_pairs: the pairs of occ_beyond_* and occ_reach_* as sparse lists (:class:`VolumePairs`).
     """
 
     vertices: np.ndarray
@@ -92,6 +138,7 @@ class Occluders:
     occ_reach_neg: np.ndarray | None = None
     vol_centers: np.ndarray | None = None
     vol_radii: np.ndarray | None = None
+    vol_pairs: VolumePairs | None = None
 
     @property
     def n(self) -> int:
@@ -430,10 +477,11 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     reach_pos = with_solids(occ_pos.T, per_solid(occ_pos.T))
     reach_neg = with_solids(occ_neg.T, per_solid(occ_neg.T))
     occ_pos, occ_neg = with_solids(occ_pos, true_o), with_solids(occ_neg, true_o)
+    pairs = _volume_pairs((occ_pos, occ_neg), (reach_pos, reach_neg))
     return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
                      front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
                      sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
-                     np.concatenate([radii, sol.radii]))
+                     np.concatenate([radii, sol.radii]), pairs)
 
 
 #: target number of member polygons per tile of a merged occluder

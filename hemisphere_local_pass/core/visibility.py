@@ -465,21 +465,11 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
         e = np.zeros(0, dtype=np.int64)
         return Coverage(np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e, ax_o, half_o)
 
-    # clusters (face instances) against shadow volumes, dense over (instance, occluder)
-    n_k = sv.n_face
-    k_occ = sv.occluder[:n_k]
-    q_tab = table[sv.point[:n_k]]                                                # (K, n_vol)
-    has = q_tab >= 0
-    q_safe = np.where(has, q_tab, 0)
-    has &= sv.occludes[q_safe]
-    sig_pos = sv.side[q_safe] > 0
-    beyond = np.where(sig_pos, occ.occ_beyond_pos[k_occ], occ.occ_beyond_neg[k_occ]) & has
-    # ... and the volume's occluder must reach to P's side of the cluster's plane
-    k_front_pos = sv.side[:n_k] < 0                                              # (K,) P on the + side
-    beyond &= np.where(k_front_pos[:, None], occ.occ_reach_pos[k_occ], occ.occ_reach_neg[k_occ])
-    beyond[np.arange(n_k), k_occ] = False
-    k_idx, o_idx = np.nonzero(beyond)
-    kq = q_tab[k_idx, o_idx]
+    # clusters (face instances) against shadow volumes
+    if DENSE_COVERAGE or occ.vol_pairs is None:
+        k_idx, kq = _cluster_pairs_dense(sv, table, occ)
+    else:
+        k_idx, kq = _cluster_pairs(sv, table, occ)
     kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.vol_radii[sv.occluder], sv,
                                ax_o, half_o, ax_o, half_o)
     k_idx, kq = k_idx[kept], kq[kept]
@@ -493,6 +483,78 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     np.add.at(k_ptr, k_idx + 1, 1)
     k_ptr = np.cumsum(k_ptr)
     return Coverage(cluster_covered, k_ptr, kq, ax_o, half_o)
+
+
+#: build :func:`coverage`'s (cluster, volume) pairs from the dense (instance × volume) tables, as before
+#: the sparse lists (for tests and benchmarks: the same pairs in the same order)
+DENSE_COVERAGE = False
+
+
+def _cluster_pairs_dense(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
+    """:func:`_cluster_pairs` through dense (K, n_vol) arrays: K face instances × all volumes."""
+    n_k = sv.n_face
+    k_occ = sv.occluder[:n_k]
+    q_tab = table[sv.point[:n_k]]                                                # (K, n_vol)
+    has = q_tab >= 0
+    q_safe = np.where(has, q_tab, 0)
+    has &= sv.occludes[q_safe]
+    sig_pos = sv.side[q_safe] > 0
+    beyond = np.where(sig_pos, occ.occ_beyond_pos[k_occ], occ.occ_beyond_neg[k_occ]) & has
+    # ... and the volume's occluder must reach to P's side of the cluster's plane
+    k_front_pos = sv.side[:n_k] < 0                                              # (K,) P on the + side
+    beyond &= np.where(k_front_pos[:, None], occ.occ_reach_pos[k_occ], occ.occ_reach_neg[k_occ])
+    beyond[np.arange(n_k), k_occ] = False
+    k_idx, o_idx = np.nonzero(beyond)
+    return k_idx, q_tab[k_idx, o_idx]
+
+
+def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
+    """The (face instance k, volume instance q) pairs at one receiver where the volume can hide part of
+    the cluster: q occludes, the cluster reaches beyond q's plane away from P (``occ_beyond_*`` by P's
+    side of it) and q's occluder reaches P's side of the cluster's plane (``occ_reach_*``). Returns
+    ``k_idx, kq`` sorted by k, then by q's occluder (the order of a dense scan over (k, volume)).
+
+    Generated from the scene's sparse lists (:class:`.culling.VolumePairs`) without anything dense over
+    (instance × volume): from the faces' side (each instance's lists for its own side of its plane,
+    filtered by the volume's side) or from the volumes' side (the converse), whichever lists are
+    shorter for this chunk. Time and memory O(K + Q + the entries listed).
+    """
+    vp = occ.vol_pairs
+    n_k, n_q = sv.n_face, sv.n_base
+    k_occ = sv.occluder[:n_k]
+    t_k = (sv.side[:n_k] >= 0).astype(np.int64)             # 0: P on the + side of the cluster's plane
+    qs = np.flatnonzero(sv.occludes[:n_q])
+    s_q = (sv.side[qs] <= 0).astype(np.int64)               # 0: P on the - side of the volume's plane
+    o_q = sv.occluder[qs]
+    f_len = np.diff(vp.by_face_ptr, axis=1)                 # (4, n_o)
+    v_len = np.diff(vp.by_vol_ptr, axis=1)                  # (4, n_vol)
+    cost_f = int(f_len[t_k, k_occ].sum() + f_len[2 + t_k, k_occ].sum())
+    cost_v = int(v_len[2 * s_q, o_q].sum() + v_len[2 * s_q + 1, o_q].sum())
+    ks, qq = [], []
+    for s in (0, 1):
+        for t in (0, 1):
+            c = 2 * s + t
+            if cost_f <= cost_v:
+                kk = np.flatnonzero(t_k == t)
+                b, o = expand(k_occ[kk], vp.by_face_ptr[c], vp.by_face_vol[c])
+                kk = kk[b]
+                q = table[sv.point[kk], o]
+                ok = q >= 0
+                kk, q = kk[ok], q[ok]
+                ok = sv.occludes[q] & ((sv.side[q] <= 0) == bool(s))
+            else:
+                qi = qs[s_q == s]
+                b, f = expand(sv.occluder[qi], vp.by_vol_ptr[c], vp.by_vol_face[c])
+                q = qi[b]
+                kk = table[sv.point[q], f]
+                ok = kk >= 0
+                kk, q = kk[ok], q[ok]
+                ok = t_k[kk] == t
+            ks.append(kk[ok])
+            qq.append(q[ok])
+    k_idx, kq = np.concatenate(ks), np.concatenate(qq)
+    order = np.lexsort((sv.occluder[kq], k_idx))
+    return k_idx[order], kq[order]
 
 
 def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: Coverage, occ: Occluders, scene,
