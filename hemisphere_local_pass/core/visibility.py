@@ -489,6 +489,9 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
 #: the sparse lists (for tests and benchmarks: the same pairs in the same order)
 DENSE_COVERAGE = False
 
+#: entries of the sparse lists expanded at a time in :func:`_cluster_pairs`
+PAIR_BLOCK = 1 << 19
+
 
 def _cluster_pairs_dense(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
     """:func:`_cluster_pairs` through dense (K, n_vol) arrays: K face instances × all volumes."""
@@ -534,24 +537,32 @@ def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
     for s in (0, 1):
         for t in (0, 1):
             c = 2 * s + t
-            if cost_f <= cost_v:
-                kk = np.flatnonzero(t_k == t)
-                b, o = expand(k_occ[kk], vp.by_face_ptr[c], vp.by_face_vol[c])
-                kk = kk[b]
-                q = table[sv.point[kk], o]
-                ok = q >= 0
-                kk, q = kk[ok], q[ok]
-                ok = sv.occludes[q] & ((sv.side[q] <= 0) == bool(s))
+            by_face = cost_f <= cost_v
+            if by_face:
+                own = np.flatnonzero(t_k == t)
+                ptr, vals, row = vp.by_face_ptr[c], vp.by_face_vol[c], k_occ
             else:
-                qi = qs[s_q == s]
-                b, f = expand(sv.occluder[qi], vp.by_vol_ptr[c], vp.by_vol_face[c])
-                q = qi[b]
-                kk = table[sv.point[q], f]
-                ok = kk >= 0
-                kk, q = kk[ok], q[ok]
-                ok = t_k[kk] == t
-            ks.append(kk[ok])
-            qq.append(q[ok])
+                own = qs[s_q == s]
+                ptr, vals, row = vp.by_vol_ptr[c], vp.by_vol_face[c], sv.occluder
+            # in blocks of about PAIR_BLOCK listed entries: the temporaries stay below ~100 MB
+            ends = np.cumsum(ptr[row[own] + 1] - ptr[row[own]])
+            cuts = np.searchsorted(ends, np.arange(PAIR_BLOCK, int(ends[-1]) if len(ends) else 0, PAIR_BLOCK))
+            for blk in np.split(own, np.unique(cuts)):
+                b, o = expand(row[blk], ptr, vals)
+                if by_face:
+                    kk = blk[b]
+                    q = table[sv.point[kk], o]
+                    ok = q >= 0
+                    kk, q = kk[ok], q[ok]
+                    ok = sv.occludes[q] & ((sv.side[q] <= 0) == bool(s))
+                else:
+                    q = blk[b]
+                    kk = table[sv.point[q], o]
+                    ok = kk >= 0
+                    kk, q = kk[ok], q[ok]
+                    ok = t_k[kk] == t
+                ks.append(kk[ok])
+                qq.append(q[ok])
     k_idx, kq = np.concatenate(ks), np.concatenate(qq)
     order = np.lexsort((sv.occluder[kq], k_idx))
     return k_idx[order], kq[order]
