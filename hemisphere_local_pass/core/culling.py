@@ -52,27 +52,27 @@ class VolumePairs:
 
 def _volume_pairs(beyond: tuple, reach: tuple) -> VolumePairs:
     """:class:`VolumePairs` from the dense ``(n_o, n_vol)`` tables ``beyond = (pos, neg)``, ``reach =
-    (pos, neg)``, a block of faces at a time (temporaries of about 2**22 entries)."""
+    (pos, neg)``, a block of faces (or volumes) at a time: temporaries of about 2**22 entries besides
+    the lists (4 bytes an entry per orientation), O(n_o n_vol) time."""
     n_o, n_vol = beyond[0].shape
-    step = max(1, (1 << 22) // max(1, n_vol))
     f_ptr, f_vol, v_ptr, v_face = [], [], [], []
     for s in (0, 1):
         for t in (0, 1):
-            rows, cols = [], []
-            for a in range(0, n_o, step):
-                blk = beyond[s][a:a + step] & reach[t][a:a + step]
-                d = np.arange(a, min(n_o, a + step))
-                blk[d - a, d] = False                          # a face never hides itself
-                r, c = np.nonzero(blk)
-                rows.append((r + a).astype(np.int32))
-                cols.append(c.astype(np.int32))
-            r = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int32)
-            c = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int32)
-            f_ptr.append(np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n_o))]))
-            f_vol.append(c)
-            order = np.argsort(c, kind="stable")               # by volume, then face
-            v_ptr.append(np.concatenate([[0], np.cumsum(np.bincount(c, minlength=n_vol))]))
-            v_face.append(r[order])
+            for by_vol in (False, True):
+                n_r = n_vol if by_vol else n_o
+                step = max(1, (1 << 22) // max(1, n_o if by_vol else n_vol))
+                counts, vals = [np.zeros(1, dtype=np.int64)], []
+                for a in range(0, n_r, step):
+                    e = min(n_r, a + step)
+                    blk = (beyond[s][:, a:e] & reach[t][:, a:e]).T if by_vol else beyond[s][a:e] & reach[t][a:e]
+                    d = np.arange(a, min(e, n_o))
+                    blk[d - a, d] = False                          # a face never hides itself
+                    r, c = np.nonzero(blk)
+                    counts.append(np.bincount(r, minlength=e - a))
+                    vals.append(c.astype(np.int32))
+                ptr = np.cumsum(np.concatenate(counts))
+                (v_ptr if by_vol else f_ptr).append(ptr)
+                (v_face if by_vol else f_vol).append(np.concatenate(vals) if vals else np.zeros(0, dtype=np.int32))
     return VolumePairs(np.array(f_ptr, dtype=np.int64).reshape(4, n_o + 1), f_vol,
                        np.array(v_ptr, dtype=np.int64).reshape(4, n_vol + 1), v_face)
 
