@@ -52,7 +52,7 @@ class VolumePairs:
 
 def _volume_pairs(beyond: tuple, reach: tuple) -> VolumePairs:
     """:class:`VolumePairs` from the dense ``(n_o, n_vol)`` tables ``beyond = (pos, neg)``, ``reach =
-    (pos, neg)``, a block of faces (or volumes) at a time: temporaries of about 2**22 entries besides
+    (pos, neg)``, a block of faces (or volumes) at a time: temporaries of about 2**20 entries besides
     the lists (4 bytes an entry per orientation), O(n_o n_vol) time."""
     n_o, n_vol = beyond[0].shape
     f_ptr, f_vol, v_ptr, v_face = [], [], [], []
@@ -60,7 +60,7 @@ def _volume_pairs(beyond: tuple, reach: tuple) -> VolumePairs:
         for t in (0, 1):
             for by_vol in (False, True):
                 n_r = n_vol if by_vol else n_o
-                step = max(1, (1 << 22) // max(1, n_o if by_vol else n_vol))
+                step = max(1, (1 << 20) // max(1, n_o if by_vol else n_vol))
                 counts, vals = [np.zeros(1, dtype=np.int64)], []
                 for a in range(0, n_r, step):
                     e = min(n_r, a + step)
@@ -416,14 +416,30 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
     n_o = n_loops
     none = np.zeros((0, n_o), dtype=bool)
-    b_pos, b_neg, bb_pos, bb_neg = (_beyond(scene.poly_vertices, scene.poly_counts, verts, normals, occ_tilt) if n
-                                    else (none,) * 4)
-    o_pos, o_neg, ob_pos, ob_neg = _beyond(verts, counts, verts, normals, occ_tilt)
+    o_tabs = _beyond(verts, counts, verts, normals, occ_tilt)
+    o_pos, o_neg, ob_pos, ob_neg = o_tabs
+    # a polygon alone in its occluder is that occluder's body (the same vertices in the same order): its
+    # rows are the occluder's, bit for bit (padding repeats the last vertex in both); only the others are
+    # computed (in a scene whose polygons do not merge, that is none)
+    alone = np.zeros(n, dtype=bool)
+    if n:
+        n_mem = np.bincount(members[members >= 0], minlength=n_o)
+        alone = (members >= 0) & (n_mem[np.maximum(members, 0)] == 1)
+    b_pos, b_neg, bb_pos, bb_neg = _rows_reusing(
+        alone, members, o_tabs, lambda r: _beyond(scene.poly_vertices[r], scene.poly_counts[r], verts, normals,
+                                                  occ_tilt)) if n else (none,) * 4
     # and the converse: does occluder o reach to either side of polygon i's plane (it can only hide a
-    # part of i from a receiver on a side it reaches to)
-    f_pos, f_neg, fb_pos, fb_neg = ((t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices,
-                                                                 scene.poly_normals, scene.poly_tilt)) if n
-                                    else (none,) * 4)
+    # part of i from a receiver on a side it reaches to); where the polygon's plane is its occluder's
+    # bit for bit (normal and tilt), the occluder's columns
+    if n:
+        same = alone & (scene.poly_normals == normals[np.maximum(members, 0)]).all(axis=1) \
+            & (scene.poly_tilt == occ_tilt[np.maximum(members, 0)])
+        f_pos, f_neg, fb_pos, fb_neg = _rows_reusing(
+            same, members, [t.T for t in o_tabs],
+            lambda r: [t.T for t in _beyond(verts, counts, scene.poly_vertices[r], scene.poly_normals[r],
+                                            scene.poly_tilt[r])])
+    else:
+        f_pos, f_neg, fb_pos, fb_neg = (none,) * 4
     # Two surfaces are coplanar when each lies in the other's plane within that plane's uncertainty,
     # all of the surface within the tolerance of its farthest vertex (``*_body``); coplanar pairs keep
     # those flags. Other pairs use each vertex's own tolerance: a sliver through P is "beyond" the plane
@@ -482,6 +498,21 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
                      front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
                      sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
                      np.concatenate([radii, sol.radii]), pairs)
+
+
+def _rows_reusing(reuse, members, tables, compute):
+    """Four ``(n, n_o)`` bool tables: rows ``i`` with ``reuse[i]`` are ``tables[t][members[i]]``, the others
+    ``compute(rows)[t]`` (each ``(len(rows), n_o)``)."""
+    n = len(reuse)
+    out = [np.empty((n, t.shape[1]), dtype=bool) for t in tables]
+    idx = np.flatnonzero(reuse)
+    rest = np.flatnonzero(~reuse)
+    for o, t in zip(out, tables):
+        o[idx] = t[members[idx]]
+    if len(rest):
+        for o, t in zip(out, compute(rest)):
+            o[rest] = t
+    return out
 
 
 #: target number of member polygons per tile of a merged occluder
