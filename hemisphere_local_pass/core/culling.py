@@ -39,9 +39,9 @@ class VolumePairs:
     Combination ``c = 2 s + t``: ``s = 0`` for ``occ_beyond_pos`` (a receiver behind the volume's
     plane), 1 for ``occ_beyond_neg``; ``t = 0`` for ``occ_reach_pos`` (a receiver in front of the
     face's plane), 1 for ``occ_reach_neg``. Pair (face f, volume o), ``o != f``, is in combination c
-    when both flags hold. ``by_face_ptr (4, n_o+1)``, ``by_face_vol[c]`` (int32): CSR lists of the
+    when both flags hold. ``by_face_ptr (4, n_o+1)``, ``by_face_vol[c]``: CSR lists of the
     volumes of every face (ascending); ``by_vol_ptr (4, n_vol+1)``, ``by_vol_face[c]``: the faces of
-    every volume (ascending). Memory: 16 bytes per pair (a face and a volume, two orientations).
+    every volume (ascending); entries uint16 below 65,536 volumes, else int32: 4 (8) bytes a pair.
     """
 
     by_face_ptr: np.ndarray
@@ -53,8 +53,9 @@ class VolumePairs:
 def _volume_pairs(beyond: tuple, reach: tuple) -> VolumePairs:
     """:class:`VolumePairs` from the dense ``(n_o, n_vol)`` tables ``beyond = (pos, neg)``, ``reach =
     (pos, neg)``, a block of faces (or volumes) at a time: temporaries of about 2**20 entries besides
-    the lists (4 bytes an entry per orientation), O(n_o n_vol) time."""
+    the lists (2 bytes an entry per orientation below 65,536 volumes, else 4), O(n_o n_vol) time."""
     n_o, n_vol = beyond[0].shape
+    idx = np.uint16 if n_vol < 2**16 else np.int32           # 2 bytes an entry up to 65,535 volumes
     f_ptr, f_vol, v_ptr, v_face = [], [], [], []
     for s in (0, 1):
         for t in (0, 1):
@@ -69,10 +70,10 @@ def _volume_pairs(beyond: tuple, reach: tuple) -> VolumePairs:
                     blk[d - a, d] = False                          # a face never hides itself
                     r, c = np.nonzero(blk)
                     counts.append(np.bincount(r, minlength=e - a))
-                    vals.append(c.astype(np.int32))
+                    vals.append(c.astype(idx))
                 ptr = np.cumsum(np.concatenate(counts))
                 (v_ptr if by_vol else f_ptr).append(ptr)
-                (v_face if by_vol else f_vol).append(np.concatenate(vals) if vals else np.zeros(0, dtype=np.int32))
+                (v_face if by_vol else f_vol).append(np.concatenate(vals) if vals else np.zeros(0, dtype=idx))
     return VolumePairs(np.array(f_ptr, dtype=np.int64).reshape(4, n_o + 1), f_vol,
                        np.array(v_ptr, dtype=np.int64).reshape(4, n_vol + 1), v_face)
 
