@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rowops import unique_rows
+from .rowops import pack_bits, unique_rows
 from .scene import Scene, plane_uncertainty
 from .solids import Solids, build_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
@@ -88,12 +88,14 @@ class Occluders:
         normals: (n_o, 3) unit plane normals.
         centers, radii: (n_o, 3), (n_o,) bounding spheres.
         members: (n,) occluder index of every convex polygon of the scene.
-        beyond_pos, beyond_neg: (n, n_o) bool — polygon i has a vertex strictly on the positive /
-            negative side of occluder o's plane. A polygon can only be hidden by o from a point on the
-            other side.
-        occ_beyond_pos, occ_beyond_neg: (n_o, n_o) bool — the same between occluders.
-        front_pos, front_neg: (n, n_o) bool — occluder o has a vertex strictly on the positive / negative
-            side of polygon i's plane. o can only hide part of i from a receiver on a side o reaches to.
+        beyond_pos, beyond_neg: (n, n_o) bool, packed as bits (:func:`.rowops.pack_bits`; read with
+            :func:`.rowops.bit_at`, like every table below) — polygon i has a vertex strictly on the
+            positive / negative side of occluder o's plane. A polygon can only be hidden by o from a point
+            on the other side.
+        occ_beyond_pos, occ_beyond_neg: (n_o, n_o) bool, as bits — the same between occluders.
+        front_pos, front_neg: (n, n_o) bool, as bits — occluder o has a vertex strictly on the positive /
+            negative side of polygon i's plane. o can only hide part of i from a receiver on a side o
+            reaches to.
         tile_of: (n,) tile of every polygon; tiles split the members of large merged occluders into
             spatial groups of about :data:`TILE_SIZE` (sec. 3.4's voxels): tile_corners (T, 8, 3) the
             corners of each tile's bounding box, tile_centers (T, 3), tile_radii (T,), tile_occluder (T,);
@@ -104,7 +106,7 @@ class Occluders:
         tilt, noise: (n_o,) uncertainty of each occluder's plane (see :func:`.scene.plane_uncertainty`).
         solids: the convex solids among the occluders (:mod:`.solids`). A solid's volume is occluder
             ``n_o + s``: the tables above have ``n_o + n_s`` columns (``beyond_*`` True for solids,
-            ``front_*`` the union over the solid's faces); occ_reach_pos, occ_reach_neg (n_o, n_o + n_s):
+            ``front_*`` the union over the solid's faces); occ_reach_pos, occ_reach_neg (n_o, n_o + n_s), bits:
             occluder (or solid) o has a vertex strictly on the positive / negative side of occluder k's
             plane (``[k, o]``); vol_centers (n_o + n_s, 3), vol_radii: bounding spheres of all volumes.
         vol_pairs: the pairs of occ_beyond_* and occ_reach_* as sparse lists (:class:`VolumePairs`).
@@ -495,6 +497,9 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     reach_neg = with_solids(occ_neg.T, per_solid(occ_neg.T))
     occ_pos, occ_neg = with_solids(occ_pos, true_o), with_solids(occ_neg, true_o)
     pairs = _volume_pairs((occ_pos, occ_neg), (reach_pos, reach_neg))
+    # stored as bits (an eighth of the bools: the tables go to every worker)
+    beyond_pos, beyond_neg, occ_pos, occ_neg, front_pos, front_neg, reach_pos, reach_neg = (
+        pack_bits(t) for t in (beyond_pos, beyond_neg, occ_pos, occ_neg, front_pos, front_neg, reach_pos, reach_neg))
     return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
                      front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
                      sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),

@@ -29,7 +29,7 @@ from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, onto_planes_through_p, receiver_side, snap_to_receiver
-from .rowops import any_rows, at2, max_abs_rows, nonzero_rows, sides, sum_rows, take_rows
+from .rowops import any_rows, at2, bit_at, max_abs_rows, nonzero_rows, sides, sum_rows, take_rows, unpack_rows
 from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -502,10 +502,13 @@ def _cluster_pairs_dense(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
     q_safe = np.where(has, q_tab, 0)
     has &= sv.occludes[q_safe]
     sig_pos = sv.side[q_safe] > 0
-    beyond = np.where(sig_pos, occ.occ_beyond_pos[k_occ], occ.occ_beyond_neg[k_occ]) & has
+    n_vol = occ.n_vol
+    beyond = np.where(sig_pos, unpack_rows(occ.occ_beyond_pos, k_occ, n_vol),
+                      unpack_rows(occ.occ_beyond_neg, k_occ, n_vol)) & has
     # ... and the volume's occluder must reach to P's side of the cluster's plane
     k_front_pos = sv.side[:n_k] < 0                                              # (K,) P on the + side
-    beyond &= np.where(k_front_pos[:, None], occ.occ_reach_pos[k_occ], occ.occ_reach_neg[k_occ])
+    beyond &= np.where(k_front_pos[:, None], unpack_rows(occ.occ_reach_pos, k_occ, n_vol),
+                       unpack_rows(occ.occ_reach_neg, k_occ, n_vol))
     beyond[np.arange(n_k), k_occ] = False
     k_idx, o_idx = np.nonzero(beyond)
     return k_idx, q_tab[k_idx, o_idx]
@@ -607,9 +610,9 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
         ci = cand.poly[body]
         sig = sv.side[q] > 0
         oq = sv.occluder[q]
-        beyond = np.where(sig, at2(occ.beyond_pos, ci, oq), at2(occ.beyond_neg, ci, oq))
+        beyond = np.where(sig, bit_at(occ.beyond_pos, ci, oq), bit_at(occ.beyond_neg, ci, oq))
         p_pos = cand.side[body] < 0                                              # P on the + side of the body
-        beyond &= np.where(p_pos, at2(occ.front_pos, ci, oq), at2(occ.front_neg, ci, oq))
+        beyond &= np.where(p_pos, bit_at(occ.front_pos, ci, oq), bit_at(occ.front_neg, ci, oq))
         body, q = body[beyond], q[beyond]
     if len(occ.coplanar_occ):
         # coplanar overlapping surfaces: the one facing P wins, then the lower input index
