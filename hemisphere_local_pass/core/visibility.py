@@ -467,12 +467,18 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
 
     # clusters (face instances) against shadow volumes
     if DENSE_COVERAGE or occ.vol_pairs is None:
-        k_idx, kq = _cluster_pairs_dense(sv, table, occ)
+        blocks = [_cluster_pairs_dense(sv, table, occ)]
     else:
-        k_idx, kq = _cluster_pairs(sv, table, occ)
-    kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.vol_radii[sv.occluder], sv,
-                               ax_o, half_o, ax_o, half_o)
-    k_idx, kq = k_idx[kept], kq[kept]
+        blocks = _cluster_pair_blocks(sv, table, occ)
+    radii = occ.vol_radii[sv.occluder]
+    parts = []
+    for k_idx, kq in blocks:    # tested a block at a time: only the pairs that meet are kept
+        kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, radii, sv, ax_o, half_o, ax_o,
+                                   half_o)
+        parts.append((k_idx[kept], kq[kept], cov))
+    k_idx, kq, cov = (np.concatenate(a) for a in zip(*parts))
+    order = np.lexsort((sv.occluder[kq], k_idx))          # the order of a scan over (k, volume)
+    k_idx, kq, cov = k_idx[order], kq[order], cov[order]
     cluster_covered = np.zeros(n_q, dtype=bool)
     cluster_covered[k_idx[cov]] = True
     live = ~cluster_covered[kq] & ~cov          # pairs with a non-redundant volume that cut the cluster
@@ -489,8 +495,8 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
 #: the sparse lists (for tests and benchmarks: the same pairs in the same order)
 DENSE_COVERAGE = False
 
-#: entries of the sparse lists expanded at a time in :func:`_cluster_pairs`
-PAIR_BLOCK = 1 << 19
+#: entries of the sparse lists expanded (and pairs tested) at a time in :func:`coverage`
+PAIR_BLOCK = 1 << 17
 
 
 def _cluster_pairs_dense(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
@@ -515,10 +521,19 @@ def _cluster_pairs_dense(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
 
 
 def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
+    """:func:`_cluster_pair_blocks` joined and sorted by k, then by q's occluder (the order of a dense
+    scan over (k, volume), as :func:`_cluster_pairs_dense`)."""
+    k_idx, kq = (np.concatenate(a) for a in zip(*_cluster_pair_blocks(sv, table, occ)))
+    order = np.lexsort((sv.occluder[kq], k_idx))
+    return k_idx[order], kq[order]
+
+
+def _cluster_pair_blocks(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
     """The (face instance k, volume instance q) pairs at one receiver where the volume can hide part of
     the cluster: q occludes, the cluster reaches beyond q's plane away from P (``occ_beyond_*`` by P's
-    side of it) and q's occluder reaches P's side of the cluster's plane (``occ_reach_*``). Returns
-    ``k_idx, kq`` sorted by k, then by q's occluder (the order of a dense scan over (k, volume)).
+    side of it) and q's occluder reaches P's side of the cluster's plane (``occ_reach_*``). Yields
+    blocks ``k_idx, kq`` of about :data:`PAIR_BLOCK` listed entries each (in no particular order; at
+    least one block).
 
     Generated from the scene's sparse lists (:class:`.culling.VolumePairs`) without anything dense over
     (instance × volume): from the faces' side (each instance's lists for its own side of its plane,
@@ -536,7 +551,7 @@ def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
     v_len = np.diff(vp.by_vol_ptr, axis=1)                  # (4, n_vol)
     cost_f = int(f_len[t_k, k_occ].sum() + f_len[2 + t_k, k_occ].sum())
     cost_v = int(v_len[2 * s_q, o_q].sum() + v_len[2 * s_q + 1, o_q].sum())
-    ks, qq = [], []
+    yield np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     for s in (0, 1):
         for t in (0, 1):
             c = 2 * s + t
@@ -547,7 +562,7 @@ def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
             else:
                 own = qs[s_q == s]
                 ptr, vals, row = vp.by_vol_ptr[c], vp.by_vol_face[c], sv.occluder
-            # in blocks of about PAIR_BLOCK listed entries: the temporaries stay below ~100 MB
+            # in blocks of about PAIR_BLOCK listed entries: the temporaries stay at a few tens of MB
             ends = np.cumsum(ptr[row[own] + 1] - ptr[row[own]])
             cuts = np.searchsorted(ends, np.arange(PAIR_BLOCK, int(ends[-1]) if len(ends) else 0, PAIR_BLOCK))
             for blk in np.split(own, np.unique(cuts)):
@@ -564,11 +579,7 @@ def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
                     ok = kk >= 0
                     kk, q = kk[ok], q[ok]
                     ok = t_k[kk] == t
-                ks.append(kk[ok])
-                qq.append(q[ok])
-    k_idx, kq = np.concatenate(ks), np.concatenate(qq)
-    order = np.lexsort((sv.occluder[kq], k_idx))
-    return k_idx[order], kq[order]
+                yield kk[ok], q[ok]
 
 
 def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: Coverage, occ: Occluders, scene,
