@@ -23,6 +23,12 @@ the old/new ratio is side by side in one process), 32 points:
       2048    21.6      146M       31.9     146M     1998.3    2850M    62.7x        0   3.3e-15
       8192   375.9      792M      350.1     792M   (out of memory on 24 GB)                5.1e-15
 
+``--outside`` (00:46-00:51 UTC, load 10-12; 8 and 4 points): front faces hide back faces, so level 1
+has ~n_o²/4 real pairs per receiver (tested a block at a time now) and the clipping is real work:
+
+       512     1.6       71M      186.1      71M      323.9     101M     1.7x        0   1.5e-03
+      2048    21.3      146M     1646.4     146M     3342.9     492M     2.0x        0   4.0e-04
+
 The preparation is still O(n_o²) in time and memory for such a scene (the pair tables are dense
 relations there: every face is beyond every other face's plane), now as bits and uint16 lists; the
 per-point cost is O(n_o) per receiver (shadow volumes, clear tiles, the hierarchy's roots).
