@@ -24,12 +24,58 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rowops import unique_rows
+from .rowops import pack_bits, unique_rows
 from .scene import Scene, plane_uncertainty
 from .solids import Solids, build_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
 
-__all__ = ["Occluders", "build_occluders"]
+__all__ = ["Occluders", "VolumePairs", "build_occluders"]
+
+
+@dataclass
+class VolumePairs:
+    """The receiver-independent (merged face, volume) pairs of :func:`.visibility.coverage`, sparse.
+
+    Combination ``c = 2 s + t``: ``s = 0`` for ``occ_beyond_pos`` (a receiver behind the volume's
+    plane), 1 for ``occ_beyond_neg``; ``t = 0`` for ``occ_reach_pos`` (a receiver in front of the
+    face's plane), 1 for ``occ_reach_neg``. Pair (face f, volume o), ``o != f``, is in combination c
+    when both flags hold. ``by_face_ptr (4, n_o+1)``, ``by_face_vol[c]``: CSR lists of the
+    volumes of every face (ascending); ``by_vol_ptr (4, n_vol+1)``, ``by_vol_face[c]``: the faces of
+    every volume (ascending); entries uint16 below 65,536 volumes, else int32: 4 (8) bytes a pair.
+    """
+
+    by_face_ptr: np.ndarray
+    by_face_vol: list
+    by_vol_ptr: np.ndarray
+    by_vol_face: list
+
+
+def _volume_pairs(beyond: tuple, reach: tuple) -> VolumePairs:
+    """:class:`VolumePairs` from the dense ``(n_o, n_vol)`` tables ``beyond = (pos, neg)``, ``reach =
+    (pos, neg)``, a block of faces (or volumes) at a time: temporaries of about 2**20 entries besides
+    the lists (2 bytes an entry per orientation below 65,536 volumes, else 4), O(n_o n_vol) time."""
+    n_o, n_vol = beyond[0].shape
+    idx = np.uint16 if n_vol < 2**16 else np.int32           # 2 bytes an entry up to 65,535 volumes
+    f_ptr, f_vol, v_ptr, v_face = [], [], [], []
+    for s in (0, 1):
+        for t in (0, 1):
+            for by_vol in (False, True):
+                n_r = n_vol if by_vol else n_o
+                step = max(1, (1 << 20) // max(1, n_o if by_vol else n_vol))
+                counts, vals = [np.zeros(1, dtype=np.int64)], []
+                for a in range(0, n_r, step):
+                    e = min(n_r, a + step)
+                    blk = (beyond[s][:, a:e] & reach[t][:, a:e]).T if by_vol else beyond[s][a:e] & reach[t][a:e]
+                    d = np.arange(a, min(e, n_o))
+                    blk[d - a, d] = False                          # a face never hides itself
+                    r, c = np.nonzero(blk)
+                    counts.append(np.bincount(r, minlength=e - a))
+                    vals.append(c.astype(idx))
+                ptr = np.cumsum(np.concatenate(counts))
+                (v_ptr if by_vol else f_ptr).append(ptr)
+                (v_face if by_vol else f_vol).append(np.concatenate(vals) if vals else np.zeros(0, dtype=idx))
+    return VolumePairs(np.array(f_ptr, dtype=np.int64).reshape(4, n_o + 1), f_vol,
+                       np.array(v_ptr, dtype=np.int64).reshape(4, n_vol + 1), v_face)
 
 
 @dataclass
@@ -42,12 +88,14 @@ class Occluders:
         normals: (n_o, 3) unit plane normals.
         centers, radii: (n_o, 3), (n_o,) bounding spheres.
         members: (n,) occluder index of every convex polygon of the scene.
-        beyond_pos, beyond_neg: (n, n_o) bool — polygon i has a vertex strictly on the positive /
-            negative side of occluder o's plane. A polygon can only be hidden by o from a point on the
-            other side.
-        occ_beyond_pos, occ_beyond_neg: (n_o, n_o) bool — the same between occluders.
-        front_pos, front_neg: (n, n_o) bool — occluder o has a vertex strictly on the positive / negative
-            side of polygon i's plane. o can only hide part of i from a receiver on a side o reaches to.
+        beyond_pos, beyond_neg: (n, n_o) bool, packed as bits (:func:`.rowops.pack_bits`; read with
+            :func:`.rowops.bit_at`, like every table below) — polygon i has a vertex strictly on the
+            positive / negative side of occluder o's plane. A polygon can only be hidden by o from a point
+            on the other side.
+        occ_beyond_pos, occ_beyond_neg: (n_o, n_o) bool, as bits — the same between occluders.
+        front_pos, front_neg: (n, n_o) bool, as bits — occluder o has a vertex strictly on the positive /
+            negative side of polygon i's plane. o can only hide part of i from a receiver on a side o
+            reaches to.
         tile_of: (n,) tile of every polygon; tiles split the members of large merged occluders into
             spatial groups of about :data:`TILE_SIZE` (sec. 3.4's voxels): tile_corners (T, 8, 3) the
             corners of each tile's bounding box, tile_centers (T, 3), tile_radii (T,), tile_occluder (T,);
@@ -58,9 +106,10 @@ class Occluders:
         tilt, noise: (n_o,) uncertainty of each occluder's plane (see :func:`.scene.plane_uncertainty`).
         solids: the convex solids among the occluders (:mod:`.solids`). A solid's volume is occluder
             ``n_o + s``: the tables above have ``n_o + n_s`` columns (``beyond_*`` True for solids,
-            ``front_*`` the union over the solid's faces); occ_reach_pos, occ_reach_neg (n_o, n_o + n_s):
+            ``front_*`` the union over the solid's faces); occ_reach_pos, occ_reach_neg (n_o, n_o + n_s), bits:
             occluder (or solid) o has a vertex strictly on the positive / negative side of occluder k's
             plane (``[k, o]``); vol_centers (n_o + n_s, 3), vol_radii: bounding spheres of all volumes.
+        vol_pairs: the pairs of occ_beyond_* and occ_reach_* as sparse lists (:class:`VolumePairs`).
     """
 
     vertices: np.ndarray
@@ -92,6 +141,7 @@ class Occluders:
     occ_reach_neg: np.ndarray | None = None
     vol_centers: np.ndarray | None = None
     vol_radii: np.ndarray | None = None
+    vol_pairs: VolumePairs | None = None
 
     @property
     def n(self) -> int:
@@ -368,51 +418,11 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     occ_tilt, occ_noise = plane_uncertainty(verts)
     # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
     n_o = n_loops
-    none = np.zeros((0, n_o), dtype=bool)
-    b_pos, b_neg, bb_pos, bb_neg = (_beyond(scene.poly_vertices, scene.poly_counts, verts, normals, occ_tilt) if n
-                                    else (none,) * 4)
-    o_pos, o_neg, ob_pos, ob_neg = _beyond(verts, counts, verts, normals, occ_tilt)
-    # and the converse: does occluder o reach to either side of polygon i's plane (it can only hide a
-    # part of i from a receiver on a side it reaches to)
-    f_pos, f_neg, fb_pos, fb_neg = ((t.T.copy() for t in _beyond(verts, counts, scene.poly_vertices,
-                                                                 scene.poly_normals, scene.poly_tilt)) if n
-                                    else (none,) * 4)
-    # Two surfaces are coplanar when each lies in the other's plane within that plane's uncertainty,
-    # all of the surface within the tolerance of its farthest vertex (``*_body``); coplanar pairs keep
-    # those flags. Other pairs use each vertex's own tolerance: a sliver through P is "beyond" the plane
-    # of a 1e-6 triangle by its vertex at P even though its far end is within that plane's uncertainty.
-    # A surface within the (poorly known) plane of the other but not vice versa — a huge polygon 1e3
-    # from the plane of a 1e-6 one far from the origin — may lie on either side of it: the flags are
-    # filters, so both are set and the exact per-vertex tests decide.
-    on_b, on_f = ~(bb_pos | bb_neg), ~(fb_pos | fb_neg)
-    coplanar = on_b & on_f
-    beyond_pos = np.where(coplanar, bb_pos, b_pos) | (on_b & ~on_f)
-    beyond_neg = np.where(coplanar, bb_neg, b_neg) | (on_b & ~on_f)
-    front_pos = np.where(coplanar, fb_pos, f_pos) | (on_f & ~on_b)
-    front_neg = np.where(coplanar, fb_neg, f_neg) | (on_f & ~on_b)
-    on_o = ~(ob_pos | ob_neg)
-    occ_coplanar = on_o & on_o.T
-    occ_pos = np.where(occ_coplanar, ob_pos, o_pos) | (on_o & ~on_o.T)
-    occ_neg = np.where(occ_coplanar, ob_neg, o_neg) | (on_o & ~on_o.T)
-    step("depth tables")
-    if n:
-        members = members[scene.dup_rep]
-    tiles = _tiles(scene, members, n_o)
-    step("tiles")
-    # coplanar overlapping surfaces (duplicates, reversed copies): polygon i lies in the plane of
-    # occluder o but is not part of it; the visibility stage lets one of them win where they overlap
-    if n:
-        coplanar[np.arange(n), members] = False
-    ci, co = np.nonzero(coplanar)
-    cop_ptr = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(cop_ptr, ci + 1, 1)
-    first_source = np.full(n_o, np.iinfo(np.int64).max)
-    if n:
-        np.minimum.at(first_source, members, scene.poly_source)
-    # convex solids: their volumes are extra occluder columns (see :mod:`.solids`)
+    o_tabs = _beyond(verts, counts, verts, normals, occ_tilt)
+    o_pos, o_neg, ob_pos, ob_neg = o_tabs
+    # convex solids: their volumes are extra occluder columns of the tables (see :mod:`.solids`)
     sol = build_solids(verts, counts, normals, occ_tilt, occ_noise) if solids else no_solids()
     fs = sol.face_solid
-    step("solids")
 
     def per_solid(table):  # (r, n_o) -> (r, n_s): any face of the solid
         out = np.zeros((table.shape[0], sol.n), dtype=bool)
@@ -423,17 +433,102 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     def with_solids(table, solid_cols):
         return np.concatenate([table, solid_cols], axis=1)
 
-    true_n = np.ones((n, sol.n), dtype=bool)
+    # a polygon alone in its occluder is that occluder's body (the same vertices in the same order): its
+    # rows are the occluder's, bit for bit (padding repeats the last vertex in both); only the others are
+    # computed (in a scene whose polygons do not merge, that is none). The converse (does occluder o
+    # reach to either side of polygon i's plane: it can only hide a part of i from a receiver on a side
+    # it reaches to) reuses the occluder's columns where the polygon's plane (normal, tilt) is its
+    # occluder's bit for bit.
+    alone = np.zeros(n, dtype=bool)
+    same = alone
+    mapped = members[scene.dup_rep] if n else members
+    if n:
+        n_mem = np.bincount(members[members >= 0], minlength=n_o)
+        alone = (members >= 0) & (n_mem[np.maximum(members, 0)] == 1)
+        same = alone & (scene.poly_normals == normals[np.maximum(members, 0)]).all(axis=1) \
+            & (scene.poly_tilt == occ_tilt[np.maximum(members, 0)])
+    # polygons against occluders, a block of rows at a time (temporaries ~2**20 entries), stored as bits
+    # (an eighth of the bools: the tables go to every worker)
+    n_bytes = (n_o + sol.n + 7) // 8
+    beyond_pos, beyond_neg, front_pos, front_neg = (np.zeros((n, n_bytes), dtype=np.uint8) for _ in range(4))
+    cis, cos = [], []
+    rows_at_once = max(1, (1 << 20) // max(1, n_o))
+    o_cols = [t.T for t in o_tabs]
+    true_r = np.ones((min(n, rows_at_once), sol.n), dtype=bool)
+    for start in range(0, n, rows_at_once):
+        r = np.arange(start, min(n, start + rows_at_once))
+        b_pos, b_neg, bb_pos, bb_neg = _rows_reusing(
+            alone[r], members[r], o_tabs,
+            lambda q, r=r: _beyond(scene.poly_vertices[r[q]], scene.poly_counts[r[q]], verts, normals, occ_tilt))
+        f_pos, f_neg, fb_pos, fb_neg = _rows_reusing(
+            same[r], members[r], o_cols,
+            lambda q, r=r: [t.T for t in _beyond(verts, counts, scene.poly_vertices[r[q]], scene.poly_normals[r[q]],
+                                                 scene.poly_tilt[r[q]])])
+        # Two surfaces are coplanar when each lies in the other's plane within that plane's uncertainty,
+        # all of the surface within the tolerance of its farthest vertex (``*_body``); coplanar pairs keep
+        # those flags. Other pairs use each vertex's own tolerance: a sliver through P is "beyond" the
+        # plane of a 1e-6 triangle by its vertex at P even though its far end is within that plane's
+        # uncertainty. A surface within the (poorly known) plane of the other but not vice versa — a huge
+        # polygon 1e3 from the plane of a 1e-6 one far from the origin — may lie on either side of it:
+        # the flags are filters, so both are set and the exact per-vertex tests decide.
+        on_b, on_f = ~(bb_pos | bb_neg), ~(fb_pos | fb_neg)
+        coplanar = on_b & on_f
+        tr = true_r[:len(r)]
+        beyond_pos[r] = pack_bits(with_solids(np.where(coplanar, bb_pos, b_pos) | (on_b & ~on_f), tr))
+        beyond_neg[r] = pack_bits(with_solids(np.where(coplanar, bb_neg, b_neg) | (on_b & ~on_f), tr))
+        fp = np.where(coplanar, fb_pos, f_pos) | (on_f & ~on_b)
+        front_pos[r] = pack_bits(with_solids(fp, per_solid(fp)))
+        fn = np.where(coplanar, fb_neg, f_neg) | (on_f & ~on_b)
+        front_neg[r] = pack_bits(with_solids(fn, per_solid(fn)))
+        # coplanar overlapping surfaces (duplicates, reversed copies): polygon i lies in the plane of
+        # occluder o but is not part of it; the visibility stage lets one of them win where they overlap
+        coplanar[np.arange(len(r)), mapped[r]] = False
+        c_i, c_o = np.nonzero(coplanar)
+        cis.append(c_i + start)
+        cos.append(c_o)
+    del o_cols
+    on_o = ~(ob_pos | ob_neg)
+    occ_coplanar = on_o & on_o.T
+    occ_pos = np.where(occ_coplanar, ob_pos, o_pos) | (on_o & ~on_o.T)
+    occ_neg = np.where(occ_coplanar, ob_neg, o_neg) | (on_o & ~on_o.T)
+    del o_tabs, o_pos, o_neg, ob_pos, ob_neg, on_o, occ_coplanar
     true_o = np.ones((n_o, sol.n), dtype=bool)
-    beyond_pos, beyond_neg = with_solids(beyond_pos, true_n), with_solids(beyond_neg, true_n)
-    front_pos, front_neg = with_solids(front_pos, per_solid(front_pos)), with_solids(front_neg, per_solid(front_neg))
     reach_pos = with_solids(occ_pos.T, per_solid(occ_pos.T))
     reach_neg = with_solids(occ_neg.T, per_solid(occ_neg.T))
     occ_pos, occ_neg = with_solids(occ_pos, true_o), with_solids(occ_neg, true_o)
+    pairs = _volume_pairs((occ_pos, occ_neg), (reach_pos, reach_neg))
+    occ_pos, occ_neg, reach_pos, reach_neg = (pack_bits(t) for t in (occ_pos, occ_neg, reach_pos, reach_neg))
+    step("depth tables")
+    members = mapped
+    tiles = _tiles(scene, members, n_o)
+    step("tiles")
+    ci = np.concatenate(cis) if cis else np.zeros(0, dtype=np.int64)
+    co = np.concatenate(cos) if cos else np.zeros(0, dtype=np.int64)
+    cop_ptr = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(cop_ptr, ci + 1, 1)
+    first_source = np.full(n_o, np.iinfo(np.int64).max)
+    if n:
+        np.minimum.at(first_source, members, scene.poly_source)
+    step("solids")
     return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
                      front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
                      sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
-                     np.concatenate([radii, sol.radii]))
+                     np.concatenate([radii, sol.radii]), pairs)
+
+
+def _rows_reusing(reuse, members, tables, compute):
+    """Four ``(n, n_o)`` bool tables: rows ``i`` with ``reuse[i]`` are ``tables[t][members[i]]``, the others
+    ``compute(rows)[t]`` (each ``(len(rows), n_o)``)."""
+    n = len(reuse)
+    out = [np.empty((n, t.shape[1]), dtype=bool) for t in tables]
+    idx = np.flatnonzero(reuse)
+    rest = np.flatnonzero(~reuse)
+    for o, t in zip(out, tables):
+        o[idx] = t[members[idx]]
+    if len(rest):
+        for o, t in zip(out, compute(rest)):
+            o[rest] = t
+    return out
 
 
 #: target number of member polygons per tile of a merged occluder

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["at2", "any_rows", "max_abs_rows", "nonzero_rows", "sides", "sum_rows", "take_rows", "unique_rows"]
+__all__ = ["at2", "any_rows", "bit_at", "max_abs_rows", "nonzero_rows", "pack_bits", "sides", "sum_rows", "take_rows",
+           "unique_rows", "unpack_rows"]
 
 
 def any_rows(b: np.ndarray) -> np.ndarray:
@@ -76,6 +77,23 @@ def at2(a: np.ndarray, i, j) -> np.ndarray:
     fancy indexing walks a multi-index iterator per element)."""
     a = np.ascontiguousarray(a)
     return np.take(a.ravel(), np.asarray(i) * a.shape[1] + j)
+
+
+def pack_bits(a: np.ndarray) -> np.ndarray:
+    """A 2-d bool table ``(r, c)`` as bits: ``(r, ceil(c / 8))`` uint8, column j in bit ``j % 8`` of byte
+    ``j // 8`` (read with :func:`bit_at`, :func:`unpack_rows`)."""
+    return np.packbits(a, axis=1, bitorder="little")
+
+
+def bit_at(bits: np.ndarray, i, j) -> np.ndarray:
+    """``a[i, j]`` (bool) of a table packed by :func:`pack_bits`, for integer index arrays."""
+    j = np.asarray(j)
+    return ((at2(bits, i, j >> 3) >> (j & 7).astype(np.uint8)) & 1).astype(bool)
+
+
+def unpack_rows(bits: np.ndarray, rows, n_cols: int) -> np.ndarray:
+    """Rows ``rows`` of a table packed by :func:`pack_bits`, as bool ``(len(rows), n_cols)``."""
+    return np.unpackbits(bits[rows], axis=1, count=n_cols, bitorder="little").view(bool)
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

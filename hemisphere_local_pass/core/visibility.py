@@ -29,7 +29,7 @@ from .csr import expand
 from .culling import Occluders
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, onto_planes_through_p, receiver_side, snap_to_receiver
-from .rowops import any_rows, at2, max_abs_rows, nonzero_rows, sides, sum_rows, take_rows
+from .rowops import any_rows, at2, bit_at, max_abs_rows, nonzero_rows, sides, sum_rows, take_rows, unpack_rows
 from .solids import solid_volumes
 from .tolerances import COORD_EPS, PLANE_EPS
 
@@ -465,24 +465,20 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
         e = np.zeros(0, dtype=np.int64)
         return Coverage(np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e, ax_o, half_o)
 
-    # clusters (face instances) against shadow volumes, dense over (instance, occluder)
-    n_k = sv.n_face
-    k_occ = sv.occluder[:n_k]
-    q_tab = table[sv.point[:n_k]]                                                # (K, n_vol)
-    has = q_tab >= 0
-    q_safe = np.where(has, q_tab, 0)
-    has &= sv.occludes[q_safe]
-    sig_pos = sv.side[q_safe] > 0
-    beyond = np.where(sig_pos, occ.occ_beyond_pos[k_occ], occ.occ_beyond_neg[k_occ]) & has
-    # ... and the volume's occluder must reach to P's side of the cluster's plane
-    k_front_pos = sv.side[:n_k] < 0                                              # (K,) P on the + side
-    beyond &= np.where(k_front_pos[:, None], occ.occ_reach_pos[k_occ], occ.occ_reach_neg[k_occ])
-    beyond[np.arange(n_k), k_occ] = False
-    k_idx, o_idx = np.nonzero(beyond)
-    kq = q_tab[k_idx, o_idx]
-    kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, occ.vol_radii[sv.occluder], sv,
-                               ax_o, half_o, ax_o, half_o)
-    k_idx, kq = k_idx[kept], kq[kept]
+    # clusters (face instances) against shadow volumes
+    if DENSE_COVERAGE or occ.vol_pairs is None:
+        blocks = [_cluster_pairs_dense(sv, table, occ)]
+    else:
+        blocks = _cluster_pair_blocks(sv, table, occ)
+    radii = occ.vol_radii[sv.occluder]
+    parts = []
+    for k_idx, kq in blocks:    # tested a block at a time: only the pairs that meet are kept
+        kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, radii, sv, ax_o, half_o, ax_o,
+                                   half_o)
+        parts.append((k_idx[kept], kq[kept], cov))
+    k_idx, kq, cov = (np.concatenate(a) for a in zip(*parts))
+    order = np.lexsort((sv.occluder[kq], k_idx))          # the order of a scan over (k, volume)
+    k_idx, kq, cov = k_idx[order], kq[order], cov[order]
     cluster_covered = np.zeros(n_q, dtype=bool)
     cluster_covered[k_idx[cov]] = True
     live = ~cluster_covered[kq] & ~cov          # pairs with a non-redundant volume that cut the cluster
@@ -493,6 +489,97 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     np.add.at(k_ptr, k_idx + 1, 1)
     k_ptr = np.cumsum(k_ptr)
     return Coverage(cluster_covered, k_ptr, kq, ax_o, half_o)
+
+
+#: build :func:`coverage`'s (cluster, volume) pairs from the dense (instance × volume) tables, as before
+#: the sparse lists (for tests and benchmarks: the same pairs in the same order)
+DENSE_COVERAGE = False
+
+#: entries of the sparse lists expanded (and pairs tested) at a time in :func:`coverage`
+PAIR_BLOCK = 1 << 17
+
+
+def _cluster_pairs_dense(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
+    """:func:`_cluster_pairs` through dense (K, n_vol) arrays: K face instances × all volumes."""
+    n_k = sv.n_face
+    k_occ = sv.occluder[:n_k]
+    q_tab = table[sv.point[:n_k]]                                                # (K, n_vol)
+    has = q_tab >= 0
+    q_safe = np.where(has, q_tab, 0)
+    has &= sv.occludes[q_safe]
+    sig_pos = sv.side[q_safe] > 0
+    n_vol = occ.n_vol
+    beyond = np.where(sig_pos, unpack_rows(occ.occ_beyond_pos, k_occ, n_vol),
+                      unpack_rows(occ.occ_beyond_neg, k_occ, n_vol)) & has
+    # ... and the volume's occluder must reach to P's side of the cluster's plane
+    k_front_pos = sv.side[:n_k] < 0                                              # (K,) P on the + side
+    beyond &= np.where(k_front_pos[:, None], unpack_rows(occ.occ_reach_pos, k_occ, n_vol),
+                       unpack_rows(occ.occ_reach_neg, k_occ, n_vol))
+    beyond[np.arange(n_k), k_occ] = False
+    k_idx, o_idx = np.nonzero(beyond)
+    return k_idx, q_tab[k_idx, o_idx]
+
+
+def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
+    """:func:`_cluster_pair_blocks` joined and sorted by k, then by q's occluder (the order of a dense
+    scan over (k, volume), as :func:`_cluster_pairs_dense`)."""
+    k_idx, kq = (np.concatenate(a) for a in zip(*_cluster_pair_blocks(sv, table, occ)))
+    order = np.lexsort((sv.occluder[kq], k_idx))
+    return k_idx[order], kq[order]
+
+
+def _cluster_pair_blocks(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
+    """The (face instance k, volume instance q) pairs at one receiver where the volume can hide part of
+    the cluster: q occludes, the cluster reaches beyond q's plane away from P (``occ_beyond_*`` by P's
+    side of it) and q's occluder reaches P's side of the cluster's plane (``occ_reach_*``). Yields
+    blocks ``k_idx, kq`` of about :data:`PAIR_BLOCK` listed entries each (in no particular order; at
+    least one block).
+
+    Generated from the scene's sparse lists (:class:`.culling.VolumePairs`) without anything dense over
+    (instance × volume): from the faces' side (each instance's lists for its own side of its plane,
+    filtered by the volume's side) or from the volumes' side (the converse), whichever lists are
+    shorter for this chunk. Time and memory O(K + Q + the entries listed).
+    """
+    vp = occ.vol_pairs
+    n_k, n_q = sv.n_face, sv.n_base
+    k_occ = sv.occluder[:n_k]
+    t_k = (sv.side[:n_k] >= 0).astype(np.int64)             # 0: P on the + side of the cluster's plane
+    qs = np.flatnonzero(sv.occludes[:n_q])
+    s_q = (sv.side[qs] <= 0).astype(np.int64)               # 0: P on the - side of the volume's plane
+    o_q = sv.occluder[qs]
+    f_len = np.diff(vp.by_face_ptr, axis=1)                 # (4, n_o)
+    v_len = np.diff(vp.by_vol_ptr, axis=1)                  # (4, n_vol)
+    cost_f = int(f_len[t_k, k_occ].sum() + f_len[2 + t_k, k_occ].sum())
+    cost_v = int(v_len[2 * s_q, o_q].sum() + v_len[2 * s_q + 1, o_q].sum())
+    yield np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    for s in (0, 1):
+        for t in (0, 1):
+            c = 2 * s + t
+            by_face = cost_f <= cost_v
+            if by_face:
+                own = np.flatnonzero(t_k == t)
+                ptr, vals, row = vp.by_face_ptr[c], vp.by_face_vol[c], k_occ
+            else:
+                own = qs[s_q == s]
+                ptr, vals, row = vp.by_vol_ptr[c], vp.by_vol_face[c], sv.occluder
+            # in blocks of about PAIR_BLOCK listed entries: the temporaries stay at a few tens of MB
+            ends = np.cumsum(ptr[row[own] + 1] - ptr[row[own]])
+            cuts = np.searchsorted(ends, np.arange(PAIR_BLOCK, int(ends[-1]) if len(ends) else 0, PAIR_BLOCK))
+            for blk in np.split(own, np.unique(cuts)):
+                b, o = expand(row[blk], ptr, vals)
+                if by_face:
+                    kk = blk[b]
+                    q = table[sv.point[kk], o]
+                    ok = q >= 0
+                    kk, q = kk[ok], q[ok]
+                    ok = sv.occludes[q] & ((sv.side[q] <= 0) == bool(s))
+                else:
+                    q = blk[b]
+                    kk = table[sv.point[q], o]
+                    ok = kk >= 0
+                    kk, q = kk[ok], q[ok]
+                    ok = t_k[kk] == t
+                yield kk[ok], q[ok]
 
 
 def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: Coverage, occ: Occluders, scene,
@@ -534,9 +621,9 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
         ci = cand.poly[body]
         sig = sv.side[q] > 0
         oq = sv.occluder[q]
-        beyond = np.where(sig, at2(occ.beyond_pos, ci, oq), at2(occ.beyond_neg, ci, oq))
+        beyond = np.where(sig, bit_at(occ.beyond_pos, ci, oq), bit_at(occ.beyond_neg, ci, oq))
         p_pos = cand.side[body] < 0                                              # P on the + side of the body
-        beyond &= np.where(p_pos, at2(occ.front_pos, ci, oq), at2(occ.front_neg, ci, oq))
+        beyond &= np.where(p_pos, bit_at(occ.front_pos, ci, oq), bit_at(occ.front_neg, ci, oq))
         body, q = body[beyond], q[beyond]
     if len(occ.coplanar_occ):
         # coplanar overlapping surfaces: the one facing P wins, then the lower input index
