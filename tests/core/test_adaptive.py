@@ -218,8 +218,12 @@ def test_interpolation_does_skip_work(name, size, most):
 def test_thin_shadow_lines_slip_without_the_shadow_test():
     """The thin occluders' penumbra lines fall between samples (the scene really is adversarial): with
     the geometric shadow test switched off (no emitter counts as a light) the error exceeds the
-    tolerance; with it, the same lines force refinement and the error stays within it."""
-    scene, p, n, g, ref = prepared("thin occluders")
+    tolerance; with it, the same lines force refinement and the error stays within it. (Bars offset by
+    0.02: at offset 0 the anisotropic splits happen to land samples on the lines at 1e-2; 7-8 of 12
+    random offsets slip without the shadow test, benchmarks/bench_adaptive_slip.py.)"""
+    scene, o, d = thin_occluders(offset=0.02)
+    p, n, g = image_inputs(scene, o, d)
+    ref = exact_image(scene, p, n, g)
     tol = 1e-2 * ref[g >= 0].mean()
     img, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, light_ratio=np.inf)
     assert st.lights == 0
