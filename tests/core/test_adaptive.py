@@ -235,7 +235,8 @@ def test_thin_shadow_lines_slip_without_the_shadow_test():
 
 def test_anisotropic_splits_follow_one_dimensional_variation():
     """A floor under a long light bar along y: H varies along x only, so rejected cells are halved along
-    x alone (their interpolation along y passes), with fewer exact pixels and the error still within."""
+    x alone (their interpolation along y passes, up to 2:1 cells), with fewer exact pixels (measured 721
+    against 1,209 at 1e-2) and the error still within the tolerance."""
     parts = []
     grid(parts, quad(-1, 2, -3, 4, 0.0), 3, 3, 0.0)
     parts.append((down(quad(-0.3, -0.1, -3, 4, 0.6)), 5.0))
@@ -243,7 +244,7 @@ def test_anisotropic_splits_follow_one_dimensional_variation():
     o, d = pinhole((0.5, 0.5, 2.0), (0.5, 0.5, 0.0), (0, 1, 0), 2 * np.arctan(0.25))
     p, n, g = image_inputs(scene, o, d)
     ref = exact_image(scene, p, n, g)
-    tol = 1e-3 * ref[g >= 0].mean()
+    tol = 1e-2 * ref[g >= 0].mean()
     img_a, st_a = adaptive_irradiance(scene, p, n, g, tolerance=tol)
     img_i, st_i = adaptive_irradiance(scene, p, n, g, tolerance=tol, anisotropic=False)
     assert np.abs(img_a - ref).max() <= tol and np.abs(img_i - ref).max() <= tol
