@@ -176,18 +176,24 @@ def split_convex(
             den0 = np.where(both0, 1.0, a0 - b0)
             den1 = np.where(both0 & (a1 != b1), a1 - b1, 1.0)
             t0 = np.where(both0, np.where(a1 != b1, a1 / den1, 0.0), a0 / den0)
+            u0 = np.where(both0, np.where(a1 != b1, -b1 / den1, 1.0), -b0 / den0)      # 1 - t0
             t1 = np.where(both0, 0.0, (a0 * b1 - a1 * b0) / (den0 * den0))
             flat_i = inf.reshape(-1, 3)
             ia, ib = np.take(flat_i, at, axis=0), np.take(flat_i, an, axis=0)
             cand_inf.reshape(-1, 3)[dest] = ia + t0[:, None] * (ib - ia) + t1[:, None] * (xb - xa)
         else:
             same = a0 == b0  # both rounded onto the plane (a resolved zero next to another)
-            t0 = np.where(same, 0.0, a0 / np.where(same, 1.0, a0 - b0))
+            den = np.where(same, 1.0, a0 - b0)
+            t0 = np.where(same, 0.0, a0 / den)
+            u0 = np.where(same, 1.0, -b0 / den)                                   # 1 - t0
         # interpolate from the endpoint nearer the plane: the new vertex then stays within one
-        # rounding of the plane whichever way the edge is walked (neighbours share the point)
+        # rounding of the plane whichever way the edge is walked (neighbours share the point). Its
+        # parameter from that end is its own quotient, not 1 - t0: near 1, t0's rounding (1e-16) is
+        # the whole of a small 1 - t0 (a cut 1e-9 from the near end was put 1e-16 off the edge's
+        # point, 1e-7 of its distance from P where that end is P's neighbour)
         near_a = np.abs(a0) <= np.abs(b0)
         cand_v.reshape(-1, 3)[dest] = np.where(near_a[:, None], xa + t0[:, None] * (xb - xa),
-                                               xb + (1.0 - t0)[:, None] * (xa - xb))
+                                               xb + u0[:, None] * (xa - xb))
         if origin_edges is not None:
             through = np.take(origin_edges.ravel(), at)
             cand_v.reshape(-1, 3)[dest[through]] = 0.0
