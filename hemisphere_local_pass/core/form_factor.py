@@ -29,13 +29,18 @@ def directions(verts: np.ndarray, inf: np.ndarray | None) -> np.ndarray:
     """
     if inf is None:
         return verts
+    return _directions(verts, inf)[0]
+
+
+def _directions(verts, inf):
+    """:func:`directions` and the ``(F, K)`` mask of the vertices at P (or None: none)."""
     length = np.linalg.norm(verts, axis=2)                                   # (F, K)
     scale = length.max(axis=1, keepdims=True)
     # rows without a limit direction (inf = 0) keep their real directions, however short
     at_p = (length <= PLANE_EPS * scale) & (np.abs(inf) > 0).any(axis=2)
     if not at_p.any():
-        return verts
-    return np.where(at_p[..., None], inf * scale[..., None], verts)
+        return verts, None
+    return np.where(at_p[..., None], inf * scale[..., None], verts), at_p
 
 
 def edge_noise(a: np.ndarray, b: np.ndarray, receiver_noise) -> np.ndarray:
@@ -50,7 +55,7 @@ def edge_noise(a: np.ndarray, b: np.ndarray, receiver_noise) -> np.ndarray:
 
 
 def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | None = None,
-                     noise=None) -> np.ndarray:
+                     noise=None, planes: np.ndarray | None = None) -> np.ndarray:
     """Signed form factor ``(F,)`` of padded polygons ``verts (F, K, 3)`` (receiver-local).
 
     ``normal`` is the receiver's unit normal, ``(F, 3)`` or ``(3,)``. The sign is positive when the
@@ -59,12 +64,16 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     Padding slots (repeated last vertex) give zero-length edges, which contribute exactly zero.
     The polygon must lie in the receiver's closed upper hemisphere (clip it first). ``noise (F,)``: the
     receivers' coordinate noise (see :func:`edge_noise`), for edges through P in one-sided limits.
+    ``planes (F, 3)`` (one-sided limits only): the unit normal of the plane through P that a row's polygon
+    lies in (zero rows: none); every edge of such a polygon not through P then has that plane as its
+    great circle, exactly: its endpoints only give it to ``ε |x| / (distance of the edge's line from P)``
+    (a cut 1e-6 from P along a 7e5 polygon tilted it by 1e-5 rad, and lost 3.5e-7 of the limit factor).
     """
     if inf is None:
         return _contour_slot_major(verts, normal)
     # one-sided limits: vertices at P take their first-order directions, and edges through P their
     # first-order great circles
-    a = directions(verts, inf)
+    a, at_p = _directions(verts, inf)
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]                              # (F, K) each
     # next vertex along the contour; padding slots repeat the last vertex, so the only wrap-around
     # edge that matters is slot K-1 -> 0
@@ -93,6 +102,19 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
         s[through] = np.linalg.norm(c1, axis=1)
         gamma = gamma.copy()
         gamma[through] = np.pi
+    fixed = through
+    if planes is not None:
+        # an edge in a plane through P (not through P, nor from it) lies on that plane's great circle: keep
+        # |a × b| and take its direction from the plane, oriented as a × b (its sign is sure: an edge's
+        # line farther from P than the noise above has |a × b| far above its rounding)
+        px, py, pz = planes[:, 0:1], planes[:, 1:2], planes[:, 2:3]
+        inplane = ((px != 0) | (py != 0) | (pz != 0)) & ~through & (s > 0)
+        if at_p is not None:  # an edge from P runs on its first-order great circle (through P + εu)
+            inplane &= ~(at_p | np.concatenate([at_p[:, 1:], at_p[:, :1]], axis=1))
+        if inplane.any():
+            ss = np.where(cx * px + cy * py + cz * pz < 0, -s, s)
+            cx, cy, cz = (np.where(inplane, ss * pc, c) for pc, c in ((px, cx), (py, cy), (pz, cz)))
+            fixed = through | inplane
     ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
     nrm = np.broadcast_to(normal, (a.shape[0], 3))
     proj = cx * nrm[:, 0:1] + cy * nrm[:, 1:2] + cz * nrm[:, 2:3]
@@ -104,7 +126,8 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     cond = sum_rows(np.abs(terms))
     bad = cond > CANCELLATION * np.abs(total)
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
-        total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, gamma[bad], (cx[bad], cy[bad], cz[bad]))
+        total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, (through[bad], fixed[bad]),
+                                     (cx[bad], cy[bad], cz[bad]))
     return _INV_2PI * total
 
 
@@ -139,12 +162,17 @@ def _edge_geometry(ax, ay, az, bx, by, bz):
     """Per edge ``a -> b`` (components as arrays of any one shape): ``(b − a)``, ``a × b``, ``|a × b|``,
     ``a · b`` and the edge angle ``γ = atan2(|a × b|, a · b)``.
 
-    ``a × b`` is computed as ``a × (b − a)``: the same vector, but for a short edge far from P the raw
-    products of ``a × b`` cancel to the last digits (a 1e-6 polygon at distance 1 would lose six)."""
+    ``a × b`` is computed as ``x × (b − a)`` with ``x`` the end nearer P (``a × (b − a) = b × (b − a)``):
+    the same vector, with rounding ``~ε |x| |b − a|``. The raw products of ``a × b`` cancel to the last
+    digits for a short edge far from P (a 1e-6 polygon at distance 1 would lose six); and the far end
+    as ``x`` cancels for an edge from a vertex near P (1e-9 from P, an edge of length 0.4: ``|a × b|``
+    ~ 4e-10 from products ~0.1, so that its great circle tilts by ~1e-8 and its term is off by 2.5e-9)."""
     ex, ey, ez = bx - ax, by - ay, bz - az
-    cx = ay * ez - az * ey
-    cy = az * ex - ax * ez
-    cz = ax * ey - ay * ex
+    b_near = bx * bx + by * by + bz * bz < ax * ax + ay * ay + az * az
+    xx, xy, xz = np.where(b_near, bx, ax), np.where(b_near, by, ay), np.where(b_near, bz, az)
+    cx = xy * ez - xz * ey
+    cy = xz * ex - xx * ez
+    cz = xx * ey - xy * ex
     s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
     d = ax * bx + ay * by + az * bz                                           # a·b
     return (ex, ey, ez), (cx, cy, cz), s, d, np.arctan2(s, d)
@@ -155,23 +183,27 @@ def _edge_geometry(ax, ay, az, bx, by, bz):
 CANCELLATION = 250.0
 
 
-def _terms_extended(a, normal, nonzero, gamma64, first_order):
-    """Σ of eq. 4's edge terms in ``np.longdouble`` for rows ``a (R, K, 3)`` (see contour_integral)."""
-    if first_order is not None:  # rows with edges through P (one-sided limits): keep float64 terms there
+def _terms_extended(a, normal, nonzero, masks, first_order):
+    """Σ of eq. 4's edge terms in ``np.longdouble`` for rows ``a (R, K, 3)`` (see contour_integral).
+
+    One-sided limits: ``masks = (through, fixed)`` (R, K) and ``first_order`` the float64 ``a × b`` whose
+    direction is kept where ``fixed`` (edges through P, with γ = π there, and edges in a plane through P)."""
+    if first_order is not None:
         cx, cy, cz = first_order
     a = a.astype(np.longdouble)
     b = np.concatenate([a[:, 1:], a[:, :1]], axis=1)
     e = b - a
-    c = np.stack([a[..., 1] * e[..., 2] - a[..., 2] * e[..., 1],
-                  a[..., 2] * e[..., 0] - a[..., 0] * e[..., 2],
-                  a[..., 0] * e[..., 1] - a[..., 1] * e[..., 0]], axis=-1)
+    x = np.where(((b * b).sum(axis=-1) < (a * a).sum(axis=-1))[..., None], b, a)   # the end nearer P
+    c = np.stack([x[..., 1] * e[..., 2] - x[..., 2] * e[..., 1],
+                  x[..., 2] * e[..., 0] - x[..., 0] * e[..., 2],
+                  x[..., 0] * e[..., 1] - x[..., 1] * e[..., 0]], axis=-1)
     s = np.sqrt((c * c).sum(axis=-1))
     d = (a * b).sum(axis=-1)
     gamma = np.arctan2(s, d)
     if first_order is not None:
-        through = gamma64 == np.pi
-        c = np.where(through[..., None], np.stack([cx, cy, cz], axis=-1).astype(np.longdouble), c)
-        s = np.where(through, np.sqrt((c * c).sum(axis=-1)), s)
+        through, fixed = masks
+        c = np.where(fixed[..., None], np.stack([cx, cy, cz], axis=-1).astype(np.longdouble), c)
+        s = np.where(fixed, np.sqrt((c * c).sum(axis=-1)), s)
         gamma = np.where(through, np.longdouble(np.pi), gamma)
     ok = nonzero & (s > 0)
     ratio = np.where(ok, gamma / np.where(ok, s, 1), 0)
