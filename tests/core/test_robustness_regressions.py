@@ -21,7 +21,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import pytest
 
 SUM_TOL = 1e-10
 
@@ -430,13 +429,15 @@ def test_tiny_triangle_across_a_plane_through_p_in_the_limit(core):
 
 
 
-@pytest.mark.xfail(strict=True, reason="open (found 2026-12-01 on numpy 1.24/1.26): the quad whose edge through P lies "
-                   "in the tangent plane loses 3.5e-7 (numpy 2.x) to 4.5e-6 (numpy 1.x) of its limit factor")
 def test_quad_with_an_edge_through_p_in_the_limit_sees_the_whole_lune(core):
     """The same scene: seen from P + δu (δ → 0+), the quad is hit within O(δ) in every direction of the
     half-space beyond its plane that lies above the horizon, so nothing hides it and its factor is that
     of the lune between the two hemispheres, (1 + N·m) / 2 with m = −n the quad side's pole (Nusselt: a
-    half disc plus half an ellipse of semi-axis |N·n|)."""
+    half disc plus half an ellipse of semi-axis |N·n|). It was 3.5e-7 (numpy 2.x) to 4.5e-6 (numpy 1.x)
+    short: the visible strip of the quad in front of the triangle's plane has an edge 1e-6 from P between
+    end points 7e5 away, whose great circle from those end points is tilted by ~1e-5 rad; an edge of a
+    polygon lying in a plane through P (not through P, nor from it) now takes that plane as its great
+    circle (see form_factor.contour_integral's ``planes``)."""
     case = TINY_ACROSS_PLANE_THROUGH_P_LIMIT
     F = _ff(core, case)[0]
     v = np.array(case["verts"])
@@ -472,15 +473,14 @@ EDGE_1E9_FROM_P = dict(
 )
 
 
-@pytest.mark.xfail(strict=True, reason="open (present at 5a399e9, found 2026-11-22 by a random dev-profile run): "
-                   "the subtraction's pieces of a polygon whose vertex is 1e-9 from P lose 2.5e-9")
 def test_pieces_of_a_polygon_1e9_from_p_keep_its_factor(core):
     """A quad with a vertex 1e-9 from P (straight along N), nicked by a sliver of another polygon's shadow
     volume. The signed sums give F = 0.25 = F(quad) - F(sliver); the subtraction's pieces (what
-    ``project_point`` and the limit path integrate) give 0.2499999975: a piece's edge from the near
-    vertex to a crossing point lies on the quad's edge only to rounding (1e-17), and with the edge's line
-    1e-9 from P that tilts its great circle by 1e-8. Keeping each piece edge's plane from its source edge
-    would fix it."""
+    ``project_point`` and the limit path integrate) gave 0.2499999975 (-2.45e-9). The pieces were right
+    (their integrals in long double sum to 0.25): eq. 4 computed ``a × b`` of the piece's edge from a
+    crossing point 0.37 away to the vertex 1e-9 from P as ``a × (b − a)`` from the far end, whose
+    products (~0.1) cancel to |a × b| = 5e-10, tilting its great circle by 1e-8. It is now taken from
+    the end nearer P (``b × (b − a)``, the same vector)."""
     case = EDGE_1E9_FROM_P
     scene = core.Scene.from_polygons(np.array(case["verts"]), case["polygons"])
     P, N = np.array(case["P"]), np.array(case["N"])
@@ -489,13 +489,15 @@ def test_pieces_of_a_polygon_1e9_from_p_keep_its_factor(core):
     np.testing.assert_allclose(pff, F, rtol=0, atol=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="open (found 2026-12-01 by the ci profile of test_properties.test_robustness "
-                   "on this machine; present at aa9e604): sum F = 1 + 3.06e-9")
 def test_vertex_1e9_above_p_between_two_polygons_through_p(core):
     """A quad whose corner is 1e-9 above P (parallel to the tangent plane) and two quads with an edge
     through P, in the one-sided limit: in the limit the two are hit within O(ε) and the quad above only
-    where they leave the hemisphere free, so the factors cannot sum to more than 1; they sum to
-    1 + 3.06e-9 (the same 1e-9-from-P class as the pieces test above)."""
+    where they leave the hemisphere free, so the factors cannot sum to more than 1; they summed to
+    1 + 3.06e-9 (found by the ci profile of test_properties.test_robustness). The cut of the quad's edge
+    from its far corner (distance -0.71 from the cutting plane) to its corner above P (7e-10) was
+    interpolated from the corner above P with parameter 1 - t0, t0 = 1 - 1e-9 rounded to 1e-16: the
+    cut point, 1.4e-9 from P, was 1.3e-16 (1e-7 of its distance) off the edge. 1 - t0 is now its own
+    quotient ``b0 / (b0 - a0)`` (clipping.split_convex)."""
     verts = [[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.2785430072655778, 0.6499336836196815, -0.5],
              [-0.2785430072655778, -0.6499336836196815, -0.5],
              [0.3713906763541037, -0.9284766908852593, -1.2071067811865475],
@@ -510,3 +512,6 @@ def test_vertex_1e9_above_p_between_two_polygons_through_p(core):
     F = core.form_factors(scene, np.array([[0.0, 0.0, -0.5]]), np.array([[0.0, 0.0, -1.0]]),
                           limit_directions=np.array([[0.0, -1.0, 0.0]]))
     assert F.sum() <= 1 + SUM_TOL, F.sum()
+    # independently: the three close the hemisphere but for the band under the quad's far rim, below
+    # the quad's height 1e-9: O(1e-18) (with the quad 1e-7 up, the band is the whole 1 - sum = 2.1e-15)
+    assert abs(F.sum() - 1.0) <= 1e-12, F.sum() - 1.0
