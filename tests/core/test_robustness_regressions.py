@@ -515,3 +515,31 @@ def test_vertex_1e9_above_p_between_two_polygons_through_p(core):
     # independently: the three close the hemisphere but for the band under the quad's far rim, below
     # the quad's height 1e-9: O(1e-18) (with the quad 1e-7 up, the band is the whole 1 - sum = 2.1e-15)
     assert abs(F.sum() - 1.0) <= 1e-12, F.sum() - 1.0
+
+
+def test_vertex_1e11_from_p_is_above_the_horizon_by_its_own_tolerance(core):
+    """A receiver 1.5e-11 from a corner of a closed box's face (a split box, exact dyadic coordinates):
+    sum F was 1 - 9.6e-5. The corner's height above P's horizon, 2.9e-13, is exact to ~1e-27, but the
+    horizon clip took it as on the horizon (tolerance PLANE_EPS x the quad's scale, 1e-12), so the quad
+    was cut at that corner instead of 8e-13 along its edge: a wedge of F = 9.6e-5 seen from so near.
+    Each vertex's height now has its own tolerance, PLANE_EPS x |x|_inf (projection.hemisphere_candidates).
+    """
+    from scenes_for_tests import split_box
+
+    quad = np.array([[0.625, 1.03125, 1.25], [1.0, 1.03125, 1.25], [1.0, 0.1875, 1.25], [0.625, 0.1875, 1.25]])
+    corner = quad[1]
+    P = np.array([0.9999999999903162, 1.0312499999966211, 1.2499999999890543])
+    N = np.array([-0.7405021951556328, 0.35001565460683237, 0.5737120710773305])
+    w = (P - corner) / np.linalg.norm(P - corner)
+    d = np.linalg.norm(P - corner)
+    # independently: F(corner + t w) is smooth in t (linear to O(t²) near 0): extrapolate from 100 d, 10^4 d
+    scene = core.Scene.from_polygons(quad, [[0, 1, 2, 3]])
+    f = [core.form_factors(scene, (corner + t * w)[None], N[None])[0, 0] for t in (d, 100 * d, 1e4 * d)]
+    expect = f[1] - (f[2] - f[1]) * (99 * d) / (1e4 * d - 100 * d)
+    assert abs(f[0] - expect) <= 1e-12, (f[0], expect)
+    # and in the closed box it came from (the same seed): sum F = 1
+    mesh = split_box([0.0, 0.0, 0.0], [1.0, 1.5, 1.25], np.random.default_rng(20261202), cells=(2, 5))
+    verts, polys = mesh.arrays()
+    assert any(np.array_equal(verts[p], quad) for p in polys)
+    F = core.form_factors(core.Scene.from_polygons(verts, polys), P[None], N[None])[0]
+    assert abs(F.sum() - 1.0) <= SUM_TOL, F.sum() - 1.0
