@@ -21,7 +21,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import pytest
 
 SUM_TOL = 1e-10
 
@@ -557,18 +556,15 @@ def _room_with_block(core):
     return core.Scene.from_polygons(np.concatenate(quads), [list(range(4 * i, 4 * i + 4)) for i in range(len(quads))])
 
 
-@pytest.mark.xfail(strict=True, reason="open (found 2026-12-02 by receivers 1e-9 from the block's corner, 25 of 300 "
-                   "above 1e-10): sum F = 1 - 3.80e-8")
 def test_receiver_1e9_from_a_block_corner_pieces_near_p(core):
-    """A receiver 1e-9 from the block's bottom corner (1, 0, 1), 9.9e-10 above the floor: sum F = 1 - 3.80e-8
-    (numpy 2.4 and 1.24); the floor and the two block faces at the corner are off by 3e-8, 9e-9 and 2e-8
-    from their linear extrapolation along the same direction from 100 and 10^4 times as far, where the
-    sums are 1 to 2e-16. Suspected cause: the floor's pieces cut by the block faces' shadow volumes have
-    vertices 2.7e-9 from P interpolated along cut lines that pass 1e-9 from P between end points 1 to 3
-    away (rounding 6e-16, 2e-7 of their distance), and edges on those cut lines, whose great circles the
-    end points give only to ~1e-7 rad. The fix would carry each piece edge's plane from its source (the
-    cutting plane through P, or the intersection of the fragment's and the occluder's planes) and take
-    the vertices' directions from consecutive planes."""
+    """A receiver 1e-9 from the block's bottom corner (1, 0, 1), 9.9e-10 above the floor: sum F was 1 - 3.80e-8
+    (numpy 2.4 and 1.24, found by receivers 1e-9 from the corner: 25 of 300 above 1e-10); the floor and the
+    two block faces at the corner were off by 3e-8, 9e-9 and 2e-8 from their linear extrapolation along
+    the same direction from 100 and 10^4 times as far, where the sums are 1 to 2e-16. Cause: the plane
+    tests of the shadow volumes took every vertex of a fragment as on a plane within PLANE_EPS x the
+    fragment's size (3e-12 for the floor's pieces), so vertices 1e-9 from P at 1e-12 from a plane through
+    P (1e-3 rad) were on it; each vertex now has its own tolerance, PLANE_EPS (|x|_inf + |offset|)
+    (visibility._own_tolerance)."""
     scene = _room_with_block(core)
     P = np.array([[0.9999999998874833, 9.931591773409472e-10, 0.9999999999687773]])
     N = np.array([[0.24923481291664693, -0.8954241420504615, 0.3689141009281141]])
@@ -576,14 +572,12 @@ def test_receiver_1e9_from_a_block_corner_pieces_near_p(core):
     assert abs(F.sum() - 1.0) <= SUM_TOL, F.sum() - 1.0
 
 
-@pytest.mark.xfail(strict=True, reason="open (found 2026-12-02 with the case above): sum F = 1 + 2.81e-5")
 def test_receiver_1e9_from_a_block_corner_and_9e12_off_its_face(core):
     """The same room, the receiver 1e-9 from the block's corner and 9.3e-12 outside the plane of its face
-    x = 1 (beyond that face's on-plane tolerance, ~2e-12): sum F = 1 + 2.81e-5 (numpy 2.4 and 1.24), all of
-    it on the floor (its linear extrapolation as above); that face's thin shadow volume does not hide
-    enough of the floor. Cause not yet found (the face is seen within 1e-2 rad of edge-on; its cone
-    planes through the far edges are 1e-11 rad from its own plane, at the scale of the on-plane
-    tolerances of the floor's cut vertices)."""
+    x = 1 (beyond that face's on-plane tolerance, ~2e-12): sum F was 1 + 2.81e-5 (numpy 2.4 and 1.24), all
+    of it on the floor: a vertex of a floor piece 1.0e-9 from P at 1.1e-12 from a plane of that face's
+    thin shadow volume was on it by the piece's tolerance (3e-12), so the floor behind the face kept
+    2.8e-5. Fixed as the case above."""
     scene = _room_with_block(core)
     P = np.array([[0.9999999999906916, 9.538887119847253e-10, 0.9999999996999839]])
     N = np.array([[0.9594137632136785, 0.1031618625354624, 0.262455445884405]])
