@@ -80,9 +80,8 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     bx = np.concatenate([ax[:, 1:], ax[:, :1]], axis=1)
     by = np.concatenate([ay[:, 1:], ay[:, :1]], axis=1)
     bz = np.concatenate([az[:, 1:], az[:, :1]], axis=1)
-    na = np.einsum("fki,fki->fk", a, a)
-    nb = np.concatenate([na[:, 1:], na[:, :1]], axis=1)
-    (ex, ey, ez), (cx, cy, cz), s, d, gamma = _edge_geometry(ax, ay, az, bx, by, bz, na, nb)
+    far = _far_ends(np.einsum("fki,fki->fk", a, a), 1)
+    (ex, ey, ez), (cx, cy, cz), s, d, gamma = _edge_geometry(ax, ay, az, bx, by, bz, far)
     # an edge through P in a one-sided limit: its end points are antipodal seen from P (a×b = 0,
     # γ = π) and its great circle is the limit of the planes through P + εu: use the first-order
     # part of the cross product, (a + ε a')×(b + ε b') = a×b + ε (a×b' + a'×b)
@@ -128,8 +127,13 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     cond = sum_rows(np.abs(terms))
     bad = cond > CANCELLATION * np.abs(total)
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
+        far_bad = None
+        if far is not None:
+            m = np.zeros(s.shape, dtype=bool)
+            m[far] = True
+            far_bad = m[bad]
         total[bad] = _terms_extended(a[bad], nrm[bad], s[bad] > 0.0, (through[bad], fixed[bad]),
-                                     (cx[bad], cy[bad], cz[bad]))
+                                     (cx[bad], cy[bad], cz[bad]), far_bad)
     return _INV_2PI * total
 
 
@@ -144,8 +148,8 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
     bx = np.concatenate([ax[1:], ax[:1]])
     by = np.concatenate([ay[1:], ay[:1]])
     bz = np.concatenate([az[1:], az[:1]])
-    na = np.einsum("ikf,ikf->kf", t, t)
-    _, (cx, cy, cz), s, _, gamma = _edge_geometry(ax, ay, az, bx, by, bz, na, np.concatenate([na[1:], na[:1]]))
+    far = _far_ends(np.einsum("ikf,ikf->kf", t, t), 0)
+    _, (cx, cy, cz), s, _, gamma = _edge_geometry(ax, ay, az, bx, by, bz, far)
     ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
     nrm = np.broadcast_to(normal, (f, 3))
     proj = cx * nrm[:, 0] + cy * nrm[:, 1] + cz * nrm[:, 2]
@@ -157,13 +161,33 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
         cond += np.abs(terms[j])
     bad = cond > CANCELLATION * np.abs(total)
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
-        total[bad] = _terms_extended(verts[bad], nrm[bad], (s[:, bad] > 0.0).T, None, None)
+        far_bad = None
+        if far is not None:
+            m = np.zeros(s.shape, dtype=bool)
+            m[far] = True
+            far_bad = m[:, bad].T
+        total[bad] = _terms_extended(verts[bad], nrm[bad], (s[:, bad] > 0.0).T, None, None, far_bad)
     return _INV_2PI * total
 
 
-def _edge_geometry(ax, ay, az, bx, by, bz, na, nb):
-    """Per edge ``a -> b`` (components as arrays of any one shape; ``na, nb`` the squared norms of a
-    and b): ``(b − a)``, ``a × b``, ``|a × b|``, ``a · b`` and the edge angle ``γ = atan2(|a × b|, a · b)``.
+def _far_ends(na: np.ndarray, axis: int):
+    """Index (a tuple for the ``(F, K)`` or ``(K, F)`` component arrays) of the edges ``a -> b`` whose end b
+    is much nearer P than a (``|b| < |a| / 4``), or None; ``na`` the squared norms of the vertices, the
+    slots along ``axis`` (b is the next slot round the polygon)."""
+    n = na if axis == 0 else na.T
+    nb16 = n * _NEAR_END_RATIO2
+    inner = nb16[1:] < n[:-1]                                                  # edges j -> j+1
+    wrap = nb16[0] < n[-1]                                                     # the closing edge K-1 -> 0
+    if not (inner.any() or wrap.any()):
+        return None
+    j, k = np.nonzero(np.concatenate([inner, wrap[None]]))
+    return (j, k) if axis == 0 else (k, j)
+
+
+def _edge_geometry(ax, ay, az, bx, by, bz, far=None):
+    """Per edge ``a -> b`` (components as arrays of any one shape; ``far`` the index of the edges whose b
+    is much nearer P, see :func:`_far_ends`): ``(b − a)``, ``a × b``, ``|a × b|``, ``a · b`` and the edge
+    angle ``γ = atan2(|a × b|, a · b)``.
 
     ``a × b`` is computed as ``a × (b − a)``: the same vector, but for a short edge far from P the raw
     products of ``a × b`` cancel to the last digits (a 1e-6 polygon at distance 1 would lose six). Its
@@ -176,9 +200,8 @@ def _edge_geometry(ax, ay, az, bx, by, bz, na, nb):
     cx = ay * ez - az * ey
     cy = az * ex - ax * ez
     cz = ax * ey - ay * ex
-    far = nb * _NEAR_END_RATIO2 < na
-    if far.any():
-        i = np.nonzero(far)
+    if far is not None:
+        i = far
         x, y, z, dx, dy, dz = bx[i], by[i], bz[i], ex[i], ey[i], ez[i]
         cx[i] = y * dz - z * dy
         cy[i] = z * dx - x * dz
@@ -197,17 +220,18 @@ _NEAR_END_RATIO2 = 16.0
 CANCELLATION = 250.0
 
 
-def _terms_extended(a, normal, nonzero, masks, first_order):
+def _terms_extended(a, normal, nonzero, masks, first_order, far=None):
     """Σ of eq. 4's edge terms in ``np.longdouble`` for rows ``a (R, K, 3)`` (see contour_integral).
 
     One-sided limits: ``masks = (through, fixed)`` (R, K) and ``first_order`` the float64 ``a × b`` whose
-    direction is kept where ``fixed`` (edges through P, with γ = π there, and edges in a plane through P)."""
+    direction is kept where ``fixed`` (edges through P, with γ = π there, and edges in a plane through P).
+    ``far (R, K)`` or None: the edges whose a × b is taken from their end b (as in float64)."""
     if first_order is not None:
         cx, cy, cz = first_order
     a = a.astype(np.longdouble)
     b = np.concatenate([a[:, 1:], a[:, :1]], axis=1)
     e = b - a
-    x = np.where(((b * b).sum(axis=-1) * _NEAR_END_RATIO2 < (a * a).sum(axis=-1))[..., None], b, a)  # as float64
+    x = a if far is None else np.where(far[..., None], b, a)
     c = np.stack([x[..., 1] * e[..., 2] - x[..., 2] * e[..., 1],
                   x[..., 2] * e[..., 0] - x[..., 0] * e[..., 2],
                   x[..., 0] * e[..., 1] - x[..., 1] * e[..., 0]], axis=-1)

@@ -179,17 +179,20 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     # nearest point, as the clear tiles' horizon test assumes.) Vertices that a one-sided limit snaps
     # onto P (below) keep the polygon's.
     # Only vertices on the horizon by the polygon's tolerance can change side (|x| <= scale).
-    eps_v = np.repeat(eps[:, None], verts.shape[1], axis=1)                     # (C, K+1)
-    on = np.nonzero(np.abs(height) <= eps_v)
+    valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
+    gt, lt = height > eps[:, None], height < -eps[:, None]
+    eps_v = eps
+    on = np.nonzero(~(gt | lt))
     if len(on[0]):
         x = np.abs(verts[on])
         own = PLANE_EPS * np.maximum(np.maximum(x[:, 0], x[:, 1]), x[:, 2])
         if limit is not None:
             own = np.where((x <= eps[on[0], None]).all(axis=1) & limit[cp[on[0]]].any(axis=1), eps[on[0]], own)
+        gt[on], lt[on] = height[on] > own, height[on] < -own
+        eps_v = np.repeat(eps[:, None], verts.shape[1], axis=1)                 # (C, K+1)
         eps_v[on] = own
-    valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
-    above = any_rows((height > eps_v) & valid)
-    straddle = any_rows((height < -eps_v) & valid)
+    above = any_rows(gt & valid)
+    straddle = any_rows(lt & valid)
     if not above.all():
         up = np.flatnonzero(above)
         side, cp, ci, verts, counts, height, eps, eps_v, straddle, pair = (
@@ -213,7 +216,8 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
                         + line_tol * np.linalg.norm(b - a, axis=2))
                        & ((a * b).sum(axis=2) < 0))
         (iv, ic, iinf), _ = split_convex(
-            take_rows(verts, s)[:, :k], counts[s], take_rows(height, s)[:, :k], take_rows(eps_v, s)[:, :k],
+            take_rows(verts, s)[:, :k], counts[s], take_rows(height, s)[:, :k],
+            eps_v[s] if eps_v.ndim == 1 else take_rows(eps_v, s)[:, :k],
             inf=None if inf is None else inf[s, :k],
             s_inf=None if inf is None else np.zeros_like(height[s, :k]),  # N . u = 0: u is tangent
             origin_edges=through, outside=False,
