@@ -182,7 +182,7 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
     gt, lt = height > eps[:, None], height < -eps[:, None]
     eps_v = eps
-    on = np.nonzero(~(gt | lt))
+    on = np.nonzero(~(gt | lt) & (height != 0.0))                               # (0 is on at any tolerance)
     if len(on[0]):
         x = np.abs(verts[on])
         own = PLANE_EPS * np.maximum(np.maximum(x[:, 0], x[:, 1]), x[:, 2])

@@ -371,8 +371,8 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
             # sums in the same order as _sides, so the clips see bitwise the same distances
             xt = np.ascontiguousarray(v.transpose(2, 1, 0))
             s_re = _distances_t(xt, nrm, off)                                     # (K, E)
-            eps = _own_tolerance(xt, s_re, PLANE_EPS * (max_abs_rows(v) + np.abs(off)), off)
-            has_in, has_out = _any_t(s_re > eps), _any_t(s_re < -eps)
+            side = _own_sides(xt, s_re, PLANE_EPS * (max_abs_rows(v) + np.abs(off)), off, want_eps=False)[0]
+            has_in, has_out = _any_t(side > 0), _any_t(side < 0)
         else:
             side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
             has_in, has_out = any_rows(side > 0), any_rows(side < 0)
@@ -400,23 +400,29 @@ def _distances_t(xt: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.n
     return xt[0] * normal[:, 0] + xt[1] * normal[:, 1] + xt[2] * normal[:, 2] - offset
 
 
-def _own_tolerance(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndarray):
-    """On-plane tolerances of points ``xt (3, K, E)`` at distances ``s_t (K, E)`` from planes with
-    ``offset (E,)``: each point's own, ``PLANE_EPS (|x|_∞ + |offset|)`` (the rounding of its distance is
-    ~ε (|x| + |offset|)), as ``(K, E)``; or ``eps (E,)`` itself (the rows' ``PLANE_EPS (max |x| + |offset|)``,
-    never smaller) where no point is within it, so that only those are looked at.
+def _own_sides(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndarray, want_eps: bool = True):
+    """Sides ``(K, E)`` int8 of points ``xt (3, K, E)`` at distances ``s_t (K, E)`` from planes with
+    ``offset (E,)``, each point on its plane within its own tolerance ``PLANE_EPS (|x|_∞ + |offset|)``
+    (the rounding of its distance is ~ε (|x| + |offset|)); and (``want_eps``) those tolerances, ``(K, E)``,
+    or ``eps`` itself where no point is within it. Decided first by ``eps (E,)`` (the rows' ``PLANE_EPS
+    (max |x| + |offset|)``, never smaller), then again only for the points within that.
 
     With the rows' tolerance a vertex 1e-9 from P at 1.1e-12 from a plane through P (1e-3 rad) was on
     it when its fragment reached 3 away, and the floor behind a block face seen nearly edge-on kept
     2.8e-5 it should not have."""
-    on = np.abs(s_t) <= eps
-    if not on.any():
-        return eps
-    k_i, e_i = np.nonzero(on)
-    x = np.abs(xt[:, k_i, e_i])                                                   # (3, n)
+    side = sides(s_t, eps)
+    flat = np.flatnonzero((side == 0) & (s_t != 0.0))                             # (0 is on at any tolerance)
+    if not len(flat):
+        return side, eps
+    e_i = flat % s_t.shape[1]
+    x0, x1, x2 = (np.abs(np.take(xt[c].reshape(-1), flat)) for c in range(3))
+    own = PLANE_EPS * (np.maximum(np.maximum(x0, x1), x2) + np.abs(np.take(offset, e_i)))
+    side.reshape(-1)[flat] = sides(np.take(s_t.reshape(-1), flat), own)
+    if not want_eps:
+        return side, None
     out = np.repeat(eps[None, :], s_t.shape[0], axis=0)
-    out[k_i, e_i] = PLANE_EPS * (np.maximum(np.maximum(x[0], x[1]), x[2]) + np.abs(offset[e_i]))
-    return out
+    out.reshape(-1)[flat] = own
+    return side, out
 
 
 def _any_t(b: np.ndarray) -> np.ndarray:
@@ -431,14 +437,13 @@ def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
     """Sides (E, K) int8 of vertices ``verts (E, K, 3)`` w.r.t. one plane each (``normal (E, 3)``,
     ``offset (E,)``; ``offset_inf`` its first-order part or None), padding slots 0; with the signed
     distances (E, K), their first-order parts or None, and the tolerances: ``PLANE_EPS (scale + |offset|)`` (E,), or
-    (E, K) where some vertex is within that and has its own (see :func:`_own_tolerance`).
+    (E, K) where some vertex is within that and has its own (see :func:`_own_sides`).
 
     Computed slot-major (the per-entry plane broadcasts along the long axis, see :mod:`.rowops`); the
     (E, K) results are transposed views."""
     xt = np.ascontiguousarray(verts.transpose(2, 1, 0))
     s_t = _distances_t(xt, normal, offset)                                        # (K, E)
-    eps = _own_tolerance(xt, s_t, PLANE_EPS * (scale + np.abs(offset)), offset)
-    side_t = sides(s_t, eps)
+    side_t, eps = _own_sides(xt, s_t, PLANE_EPS * (scale + np.abs(offset)), offset)
     si_t = None
     if inf is not None:
         si_t = _distances_t(np.ascontiguousarray(inf.transpose(2, 1, 0)), normal, offset_inf)
