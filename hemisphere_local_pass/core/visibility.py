@@ -400,7 +400,8 @@ def _distances_t(xt: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.n
     return xt[0] * normal[:, 0] + xt[1] * normal[:, 1] + xt[2] * normal[:, 2] - offset
 
 
-def _own_sides(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndarray, want_eps: bool = True):
+def _own_sides(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndarray, want_eps: bool = True,
+               at_p: bool = False):
     """Sides ``(K, E)`` int8 of points ``xt (3, K, E)`` at distances ``s_t (K, E)`` from planes with
     ``offset (E,)``, each point on its plane within its own tolerance ``PLANE_EPS (|x|_∞ + |offset|)``
     (the rounding of its distance is ~ε (|x| + |offset|)); and (``want_eps``) those tolerances, ``(K, E)``,
@@ -409,14 +410,20 @@ def _own_sides(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndar
 
     With the rows' tolerance a vertex 1e-9 from P at 1.1e-12 from a plane through P (1e-3 rad) was on
     it when its fragment reached 3 away, and the floor behind a block face seen nearly edge-on kept
-    2.8e-5 it should not have."""
+    2.8e-5 it should not have. ``at_p`` (one-sided limits): a point within the row's tolerance of P
+    itself is at P, and keeps the row's tolerance, so that its side comes from its first-order part
+    (a cut point at P interpolated to 1e-17 from it would otherwise take the side of its rounding)."""
     side = sides(s_t, eps)
     flat = np.flatnonzero((side == 0) & (s_t != 0.0))                             # (0 is on at any tolerance)
     if not len(flat):
         return side, eps
     e_i = flat % s_t.shape[1]
     x0, x1, x2 = (np.abs(np.take(xt[c].reshape(-1), flat)) for c in range(3))
-    own = PLANE_EPS * (np.maximum(np.maximum(x0, x1), x2) + np.abs(np.take(offset, e_i)))
+    m = np.maximum(np.maximum(x0, x1), x2)
+    own = PLANE_EPS * (m + np.abs(np.take(offset, e_i)))
+    if at_p:
+        row = np.take(eps, e_i)
+        own = np.where(m <= row, row, own)
     side.reshape(-1)[flat] = sides(np.take(s_t.reshape(-1), flat), own)
     if not want_eps:
         return side, None
@@ -443,7 +450,7 @@ def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
     (E, K) results are transposed views."""
     xt = np.ascontiguousarray(verts.transpose(2, 1, 0))
     s_t = _distances_t(xt, normal, offset)                                        # (K, E)
-    side_t, eps = _own_sides(xt, s_t, PLANE_EPS * (scale + np.abs(offset)), offset)
+    side_t, eps = _own_sides(xt, s_t, PLANE_EPS * (scale + np.abs(offset)), offset, at_p=inf is not None)
     si_t = None
     if inf is not None:
         si_t = _distances_t(np.ascontiguousarray(inf.transpose(2, 1, 0)), normal, offset_inf)

@@ -626,3 +626,26 @@ def test_closed_scenes_seen_from_next_to_their_vertices(core):
     P = np.array([1.0, 0.0, 1.0]) + 1e-7 * w / np.linalg.norm(w, axis=1, keepdims=True)
     F = core.form_factors(_room_with_block(core), P, random_unit_vectors(rng, len(P)))
     assert np.abs(F.sum(axis=1) - 1.0).max() <= SUM_TOL, np.abs(F.sum(axis=1) - 1.0).max()
+
+
+def test_cut_point_at_p_in_a_limit_takes_its_side_from_the_limit(core):
+    """Found by a random dev-profile run of test_properties on this branch: a receiver at a triangle's
+    vertex in a one-sided limit, a quad beyond. With each vertex's own plane tolerance a cut point at P
+    (1e-17 from it by interpolation) took the side of its rounding instead of its first-order part, and
+    the quad's F was 1 (sum F = 1.104; before this branch and now F = 0.838, sum 0.943). A vertex within the row's
+    tolerance of P is at P and keeps the row's tolerance (visibility._own_sides ``at_p``)."""
+    verts = np.array([[0.5, 0.0, -0.5], [0.0, 0.0, 0.5],
+                      [0.49993333333333334, 8.333333333333334e-05, -0.5000333333333333],
+                      [0.995007104821718, 0.49515710482162223, -0.4010185790356622],
+                      [0.004859561844948679, -0.4949904381549556, -0.5990480876310045],
+                      [0.43484555764349037, -1.0650044423564, 0.1010919543829999],
+                      [1.4249931006202596, -0.07485689937982241, 0.2991214629783422]])
+    scene = core.Scene.from_polygons(verts, [[0, 1, 2], [3, 4, 5, 6]])
+    P = np.array([[0.49993333333333334, 8.333333333333334e-05, -0.5000333333333333], [0.5, 0.0, -0.5]])
+    N = np.array([[0.7071067811864792, -0.7071067811866159, 0.0], [1.0, 0.0, 0.0]])
+    U = np.array([[-0.707106781186616, -0.7071067811864793, 0.0], [0.0, 0.0, 0.0]])
+    F = core.form_factors(scene, P, N, limit_directions=U)
+    assert np.all(F.sum(axis=1) <= 1 + SUM_TOL), F.sum(axis=1)
+    # independently: the quad alone in the same limit sees at least what it sees with the triangle
+    alone = core.form_factors(core.Scene.from_polygons(verts, [[3, 4, 5, 6]]), P, N, limit_directions=U)[:, 0]
+    assert np.all(F[:, 1] <= alone + 1e-12), (F[:, 1], alone)
