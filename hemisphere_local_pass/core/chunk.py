@@ -226,14 +226,14 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     if signed:
         # signed terms, integrated set by set; the sums need only their ids (verts None)
         terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
-        ff = np.concatenate([sign * np.maximum(t.side * contour_by_width(t, normals, points), 0.0)
+        ff = np.concatenate([sign * np.maximum(t.side * contour_by_width(t, normals, points, flat), 0.0)
                              for t, sign in terms] or [np.zeros(0)])
         frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
                                         for a in ("counts", "point", "poly", "side", "owner")))
     else:
         frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
-        ff = np.maximum(frags.side * contour_by_width(frags, normals, points), 0.0)
+        ff = np.maximum(frags.side * contour_by_width(frags, normals, points, flat), 0.0)
     if reps is not None:
         # credit each fragment to the copy that faces the receiver (then the lowest index)
         rep = frags.poly
@@ -273,17 +273,27 @@ def _split(scene, points, normals, limit, occ, include, use_clear, budget, signe
     return frags, np.concatenate([ff0, ff1]), clear
 
 
-def contour_by_width(frags: Fragments, normals, points) -> np.ndarray:
-    """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots."""
+def contour_by_width(frags: Fragments, normals, points, flat=None) -> np.ndarray:
+    """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots.
+
+    ``flat``: None or, in a one-sided limit, ``(candidate flags (C,), plane normals (n, 3))`` as for
+    :func:`.visibility.subtract_shadow_volumes`: fragments of candidates lying in a plane through P take
+    that plane as the great circle of their edges (see :func:`.form_factor.contour_integral`)."""
     width = frags.verts.shape[1]
     small = frags.counts <= 4
     noise = None if frags.inf is None else COORD_EPS * np.abs(points).max(axis=1)[frags.point]
+    planes = None
+    if frags.inf is not None and flat is not None:
+        on = flat[0][frags.owner]
+        if on.any():
+            planes = np.where(on[:, None], take_rows(flat[1], frags.poly), 0.0)
     if width <= 4 or small.all() or not small.any():
-        return contour_integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise)
+        return contour_integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise, planes)
     out = np.empty(len(frags.counts))
     for sel, w in ((np.flatnonzero(small), 4), (np.flatnonzero(~small), width)):
         out[sel] = contour_integral(take_rows(frags.verts[:, :w], sel), take_rows(normals, frags.point[sel]),
                                     None if frags.inf is None else take_rows(frags.inf[:, :w], sel),
-                                    None if noise is None else noise[sel])
+                                    None if noise is None else noise[sel],
+                                    None if planes is None else take_rows(planes, sel))
     return out
 

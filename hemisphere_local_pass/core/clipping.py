@@ -33,13 +33,13 @@ def classify(s_re: np.ndarray, eps: np.ndarray, s_inf: np.ndarray | None = None)
 
     Args:
         s_re: (F, K) signed distances (real part).
-        eps: (F,) absolute on-plane tolerance per polygon.
+        eps: (F,) absolute on-plane tolerance per polygon, or (F, K) per vertex.
         s_inf: (F, K) first-order part of the distances, or None. Decides the side where the real part
             is within tolerance (a vertex at the receiver in a one-sided limit).
     Returns:
         (F, K) int8.
     """
-    side = sides(s_re, eps[:, None])
+    side = sides(s_re, eps if eps.ndim == 2 else eps[:, None])
     if s_inf is not None:
         on = side == 0
         if on.any():
@@ -119,7 +119,8 @@ def split_convex(
 
     Args:
         verts: (F, K, 3) padded polygons; counts: (F,) vertex counts (0 = empty polygon).
-        s_re: (F, K) signed distance of every vertex slot; eps: (F,) on-plane tolerance.
+        s_re: (F, K) signed distance of every vertex slot; eps: (F,) on-plane tolerance, or (F, K) per
+            vertex slot.
         inf, s_inf: (F, K, 3) and (F, K) first-order parts (see module docstring), or None.
         origin_edges: (F, K) bool or None: edges ``j -> j+1`` whose line passes through the origin, for a
             plane through the origin: their crossing is the origin itself (exactly; interpolating a
@@ -162,11 +163,11 @@ def split_convex(
         at, an = r * k + j, r * k + jn                                    # flat slots of both ends
         a0 = np.take(s_re.ravel(), at)
         b0 = np.take(s_re.ravel(), an)
-        e = eps[r]
+        ea, eb = (np.take(eps.ravel(), at), np.take(eps.ravel(), an)) if eps.ndim == 2 else (eps[r], eps[r])
         # real parts within tolerance count as zero, so that a vertex whose side came from its
         # first-order part interpolates consistently (and an on-plane vertex is its own crossing)
-        a0 = np.where(np.abs(a0) > e, a0, 0.0)
-        b0 = np.where(np.abs(b0) > e, b0, 0.0)
+        a0 = np.where(np.abs(a0) > ea, a0, 0.0)
+        b0 = np.where(np.abs(b0) > eb, b0, 0.0)
         flat_v = verts.reshape(-1, 3)
         xa, xb = np.take(flat_v, at, axis=0), np.take(flat_v, an, axis=0)
         dest = r * (2 * k) + 2 * j + 1                                    # flat slot of the crossing
@@ -176,18 +177,24 @@ def split_convex(
             den0 = np.where(both0, 1.0, a0 - b0)
             den1 = np.where(both0 & (a1 != b1), a1 - b1, 1.0)
             t0 = np.where(both0, np.where(a1 != b1, a1 / den1, 0.0), a0 / den0)
+            u0 = np.where(both0, np.where(a1 != b1, -b1 / den1, 1.0), -b0 / den0)      # 1 - t0
             t1 = np.where(both0, 0.0, (a0 * b1 - a1 * b0) / (den0 * den0))
             flat_i = inf.reshape(-1, 3)
             ia, ib = np.take(flat_i, at, axis=0), np.take(flat_i, an, axis=0)
             cand_inf.reshape(-1, 3)[dest] = ia + t0[:, None] * (ib - ia) + t1[:, None] * (xb - xa)
         else:
             same = a0 == b0  # both rounded onto the plane (a resolved zero next to another)
-            t0 = np.where(same, 0.0, a0 / np.where(same, 1.0, a0 - b0))
+            den = np.where(same, 1.0, a0 - b0)
+            t0 = np.where(same, 0.0, a0 / den)
+            u0 = np.where(same, 1.0, -b0 / den)                                   # 1 - t0
         # interpolate from the endpoint nearer the plane: the new vertex then stays within one
-        # rounding of the plane whichever way the edge is walked (neighbours share the point)
+        # rounding of the plane whichever way the edge is walked (neighbours share the point). Its
+        # parameter from that end is its own quotient, not 1 - t0: near 1, t0's rounding (1e-16) is
+        # the whole of a small 1 - t0 (a cut 1e-9 from the near end was put 1e-16 off the edge's
+        # point, 1e-7 of its distance from P where that end is P's neighbour)
         near_a = np.abs(a0) <= np.abs(b0)
         cand_v.reshape(-1, 3)[dest] = np.where(near_a[:, None], xa + t0[:, None] * (xb - xa),
-                                               xb + (1.0 - t0)[:, None] * (xa - xb))
+                                               xb + u0[:, None] * (xa - xb))
         if origin_edges is not None:
             through = np.take(origin_edges.ravel(), at)
             cand_v.reshape(-1, 3)[dest[through]] = 0.0

@@ -172,13 +172,31 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
     nc = take_rows(normals, cp)
     height = (verts[..., 0] * nc[:, 0:1] + verts[..., 1] * nc[:, 1:2]
               + verts[..., 2] * nc[:, 2:3])                                     # (C, K+1) above the horizon
+    # a vertex's height is rounded by ~ε|x| (the horizon is exactly the plane through P normal to N), so
+    # each vertex has its own tolerance: the polygon's (PLANE_EPS × its scale) put a vertex 1.5e-11 from
+    # P at height 2.9e-13 on the horizon, so the clip cut its edge at that vertex instead of 8e-13 along,
+    # which seen from so near is a wedge of F = 1e-4. (|x|_∞ >= |x| / √3: at least half the polygon's tolerance at its
+    # nearest point, as the clear tiles' horizon test assumes.) Vertices that a one-sided limit snaps
+    # onto P (below) keep the polygon's.
+    # Only vertices on the horizon by the polygon's tolerance can change side (|x| <= scale).
     valid = np.arange(verts.shape[1])[None, :] < counts[:, None]
-    above = any_rows((height > eps[:, None]) & valid)
-    straddle = any_rows((height < -eps[:, None]) & valid)
+    gt, lt = height > eps[:, None], height < -eps[:, None]
+    eps_v = eps
+    on = np.nonzero(~(gt | lt) & (height != 0.0))                               # (0 is on at any tolerance)
+    if len(on[0]):
+        x = np.abs(verts[on])
+        own = PLANE_EPS * np.maximum(np.maximum(x[:, 0], x[:, 1]), x[:, 2])
+        if limit is not None:
+            own = np.where((x <= eps[on[0], None]).all(axis=1) & limit[cp[on[0]]].any(axis=1), eps[on[0]], own)
+        gt[on], lt[on] = height[on] > own, height[on] < -own
+        eps_v = np.repeat(eps[:, None], verts.shape[1], axis=1)                 # (C, K+1)
+        eps_v[on] = own
+    above = any_rows(gt & valid)
+    straddle = any_rows(lt & valid)
     if not above.all():
         up = np.flatnonzero(above)
-        side, cp, ci, verts, counts, height, eps, straddle, pair = (
-            take_rows(x, up) for x in (side, cp, ci, verts, counts, height, eps, straddle, pair))
+        side, cp, ci, verts, counts, height, eps, eps_v, straddle, pair = (
+            take_rows(x, up) for x in (side, cp, ci, verts, counts, height, eps, eps_v, straddle, pair))
         flat = None if flat is None else flat[up]
     inf = None
     if limit is not None:
@@ -198,7 +216,8 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
                         + line_tol * np.linalg.norm(b - a, axis=2))
                        & ((a * b).sum(axis=2) < 0))
         (iv, ic, iinf), _ = split_convex(
-            take_rows(verts, s)[:, :k], counts[s], take_rows(height, s)[:, :k], eps[s],
+            take_rows(verts, s)[:, :k], counts[s], take_rows(height, s)[:, :k],
+            eps_v[s] if eps_v.ndim == 1 else take_rows(eps_v, s)[:, :k],
             inf=None if inf is None else inf[s, :k],
             s_inf=None if inf is None else np.zeros_like(height[s, :k]),  # N . u = 0: u is tangent
             origin_edges=through, outside=False,

@@ -7,7 +7,10 @@ of a polygon), so results do not depend on the scene's units or on its distance 
 
 #: A point whose distance from a plane is at most ``PLANE_EPS`` times the local length scale lies
 #: *on* the plane. Used to classify vertices against clip planes, and to decide that a receiver
-#: point lies in the plane of a polygon (which then contributes nothing and hides nothing).
+#: point lies in the plane of a polygon (which then contributes nothing and hides nothing). For a
+#: vertex against the horizon or a shadow-volume plane the scale is the vertex's own (its largest
+#: P-local coordinate, plus the plane's offset): a vertex 1e-9 from P is not on a plane through P at
+#: 1e-12 from it (1e-3 rad), however large its polygon.
 PLANE_EPS = 1e-12
 
 #: Polygons whose area is below ``AREA_EPS`` times the square of their longest edge (slivers,

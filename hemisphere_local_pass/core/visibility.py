@@ -369,9 +369,10 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
             # padding slots repeat the last vertex, so they change neither test: no classification.
             # Slot-major (K, E): per-entry operands broadcast along the long axis (see rowops); the same
             # sums in the same order as _sides, so the clips see bitwise the same distances
-            s_re = _distances_t(np.ascontiguousarray(v.transpose(2, 1, 0)), nrm, off)   # (K, E)
-            eps = PLANE_EPS * (max_abs_rows(v) + np.abs(off))
-            has_in, has_out = _any_t(s_re > eps), _any_t(s_re < -eps)
+            xt = np.ascontiguousarray(v.transpose(2, 1, 0))
+            s_re = _distances_t(xt, nrm, off)                                     # (K, E)
+            side = _own_sides(xt, s_re, PLANE_EPS * (max_abs_rows(v) + np.abs(off)), off, want_eps=False)[0]
+            has_in, has_out = _any_t(side > 0), _any_t(side < 0)
         else:
             side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
             has_in, has_out = any_rows(side > 0), any_rows(side < 0)
@@ -399,6 +400,38 @@ def _distances_t(xt: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.n
     return xt[0] * normal[:, 0] + xt[1] * normal[:, 1] + xt[2] * normal[:, 2] - offset
 
 
+def _own_sides(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndarray, want_eps: bool = True,
+               at_p: bool = False):
+    """Sides ``(K, E)`` int8 of points ``xt (3, K, E)`` at distances ``s_t (K, E)`` from planes with
+    ``offset (E,)``, each point on its plane within its own tolerance ``PLANE_EPS (|x|_∞ + |offset|)``
+    (the rounding of its distance is ~ε (|x| + |offset|)); and (``want_eps``) those tolerances, ``(K, E)``,
+    or ``eps`` itself where no point is within it. Decided first by ``eps (E,)`` (the rows' ``PLANE_EPS
+    (max |x| + |offset|)``, never smaller), then again only for the points within that.
+
+    With the rows' tolerance a vertex 1e-9 from P at 1.1e-12 from a plane through P (1e-3 rad) was on
+    it when its fragment reached 3 away, and the floor behind a block face seen nearly edge-on kept
+    2.8e-5 it should not have. ``at_p`` (one-sided limits): a point within the row's tolerance of P
+    itself is at P, and keeps the row's tolerance, so that its side comes from its first-order part
+    (a cut point at P interpolated to 1e-17 from it would otherwise take the side of its rounding)."""
+    side = sides(s_t, eps)
+    flat = np.flatnonzero((side == 0) & (s_t != 0.0))                             # (0 is on at any tolerance)
+    if not len(flat):
+        return side, eps
+    e_i = flat % s_t.shape[1]
+    x0, x1, x2 = (np.abs(np.take(xt[c].reshape(-1), flat)) for c in range(3))
+    m = np.maximum(np.maximum(x0, x1), x2)
+    own = PLANE_EPS * (m + np.abs(np.take(offset, e_i)))
+    if at_p:
+        row = np.take(eps, e_i)
+        own = np.where(m <= row, row, own)
+    side.reshape(-1)[flat] = sides(np.take(s_t.reshape(-1), flat), own)
+    if not want_eps:
+        return side, None
+    out = np.repeat(eps[None, :], s_t.shape[0], axis=0)
+    out.reshape(-1)[flat] = own
+    return side, out
+
+
 def _any_t(b: np.ndarray) -> np.ndarray:
     """``b.any(axis=0)`` for a slot-major ``b (K, E)``, row by row (numpy's reduction is per column)."""
     out = b[0].copy()
@@ -410,13 +443,14 @@ def _any_t(b: np.ndarray) -> np.ndarray:
 def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
     """Sides (E, K) int8 of vertices ``verts (E, K, 3)`` w.r.t. one plane each (``normal (E, 3)``,
     ``offset (E,)``; ``offset_inf`` its first-order part or None), padding slots 0; with the signed
-    distances (E, K), their first-order parts or None, and the tolerances ``PLANE_EPS (scale + |offset|)``.
+    distances (E, K), their first-order parts or None, and the tolerances: ``PLANE_EPS (scale + |offset|)`` (E,), or
+    (E, K) where some vertex is within that and has its own (see :func:`_own_sides`).
 
     Computed slot-major (the per-entry plane broadcasts along the long axis, see :mod:`.rowops`); the
     (E, K) results are transposed views."""
-    s_t = _distances_t(np.ascontiguousarray(verts.transpose(2, 1, 0)), normal, offset)   # (K, E)
-    eps = PLANE_EPS * (scale + np.abs(offset))
-    side_t = sides(s_t, eps)
+    xt = np.ascontiguousarray(verts.transpose(2, 1, 0))
+    s_t = _distances_t(xt, normal, offset)                                        # (K, E)
+    side_t, eps = _own_sides(xt, s_t, PLANE_EPS * (scale + np.abs(offset)), offset, at_p=inf is not None)
     si_t = None
     if inf is not None:
         si_t = _distances_t(np.ascontiguousarray(inf.transpose(2, 1, 0)), normal, offset_inf)
@@ -424,7 +458,7 @@ def _sides(verts, inf, counts, scale, normal, offset, offset_inf):
         if on.any():
             side_t[on] = sides(si_t[on], PLANE_EPS)
     side_t *= np.arange(verts.shape[1])[:, None] < counts[None, :]
-    return side_t.T, s_t.T, None if si_t is None else si_t.T, eps
+    return side_t.T, s_t.T, None if si_t is None else si_t.T, eps.T
 
 
 @dataclass
@@ -720,7 +754,7 @@ def _subtract(frags: Fragments, ptr, ids, sv: ShadowVolumes, planes, flat=None) 
                     rc = rows[cut]
                     k = int(cur_c[rc].max())
                     (iv, ic, ii), (ov, oc, oi) = split_convex(
-                        cur_v[rc, :k], cur_c[rc], s_re[cut, :k], eps[cut],
+                        cur_v[rc, :k], cur_c[rc], s_re[cut, :k], eps[cut] if eps.ndim == 1 else eps[cut, :k],
                         inf=cur_i[rc, :k] if dual else None, s_inf=s_inf[cut, :k] if dual else None)
                     if flat is not None:
                         fr = np.flatnonzero(flat[0][work.owner[item[rc]]])
@@ -914,7 +948,8 @@ def _clip_into_volumes(frags: Fragments, q: np.ndarray, use: np.ndarray, sv: Sha
             ci = np.flatnonzero(cut)
             rc = rr[ci]
             k = int(c[rc].max())
-            (iv, ic, ii), _ = split_convex(take_rows(v, rc)[:, :k], c[rc], take_rows(s_re, ci)[:, :k], eps[ci],
+            (iv, ic, ii), _ = split_convex(take_rows(v, rc)[:, :k], c[rc], take_rows(s_re, ci)[:, :k],
+                                           eps[ci] if eps.ndim == 1 else take_rows(eps, ci)[:, :k],
                                            inf=take_rows(inf, rc)[:, :k] if dual else None,
                                            s_inf=take_rows(s_inf, ci)[:, :k] if dual else None, outside=False)
             v, inf = _store_pieces(v, inf, c, rc, iv, ii, ic)  # (the caller's private copies)

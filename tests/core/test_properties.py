@@ -22,7 +22,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from hypothesis import HealthCheck, assume, example, given, note, settings
+from hypothesis import HealthCheck, example, given, note, settings
 from hypothesis import strategies as st
 from scenes_for_tests import Mesh, box_face_quads, newell_normal, random_unit_vectors
 
@@ -420,15 +420,6 @@ def test_robustness(core, case):
     verts, idx, P, N, U, double = case
     note(f"full precision: verts={verts.tolist()!r} polygons={idx!r} P={P.tolist()!r} N={N.tolist()!r} "
          f"U={U.tolist()!r} double_sided={double}")
-    # OPEN, not solved: a vertex within 1e-8 of the scene's extent from a receiver (but not at it) is the
-    # known failing class, pinned by the strict xfails test_pieces_of_a_polygon_1e9_from_p_keep_its_factor
-    # and test_vertex_1e9_above_p_between_two_polygons_through_p (sum F = 1 + 3e-9) in
-    # test_robustness_regressions.py; it is left out here only until the core handles it (remove this
-    # line when those xfails pass).
-    used = verts[np.unique(np.concatenate([np.asarray(i) for i in idx]))]
-    dist = np.linalg.norm(used[None, :, :] - P[:, None, :], axis=2)
-    extent = np.abs(used - P[:1]).max()
-    assume(not ((dist > 0) & (dist < 1e-8 * extent)).any())
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         scene = core.Scene.from_polygons(verts, idx, np.tile([1.0, 0.5, 0.25], (len(idx), 1)), double_sided=double)
