@@ -432,18 +432,17 @@ def _convex_cores(scene: Scene, reps, root, rejected, members, counts, points):
                         chain.pop()
                     chain.append(j)
                 hull += chain[:-1]
-            k_pts = pts[hull]
-            # K in U's kernel: strictly inside every outline edge's inner half-plane
+            # K in U's kernel: strictly inside every outline edge's inner half-plane; a core with few
+            # sides around the hull if it still is (the volumes' plane count is the occluders' largest)
             first_of = np.full(int(vid.max()) + 1, -1)
             first_of[vid[::-1]] = np.arange(len(vid))[::-1]
-            lp = allv[first_of[loop]]
-            la, lb = lp, np.roll(lp, -1, axis=0)
-            e = lb - la
-            rel_k = k_pts[None, :, :] - la[:, None, :]
-            side = (np.cross(e[:, None, :], rel_k) * nrm).sum(axis=2)
-            margin = 1e-9 * np.linalg.norm(e, axis=1)[:, None] * np.linalg.norm(rel_k, axis=2)
-            if len(hull) < 3 or not (side > margin).all():
-                continue
+            la = allv[first_of[loop]]
+            e = np.roll(la, -1, axis=0) - la
+            k_pts = _fewer_sides(pts[0], e1, e2, uv[hull])
+            if k_pts is None or not _hull_ok(k_pts, la, e, nrm):
+                k_pts = pts[hull]
+                if not _hull_ok(k_pts, la, e, nrm):
+                    continue
             drop[members[polys[inner]]] = True
             cores.append(k_pts)
             core_polys.append(polys)
@@ -625,6 +624,42 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     tile_ptr = np.zeros(len(corners) + 1, dtype=np.int64)
     np.add.at(tile_ptr, tile_of + 1, 1)
     return tile_of, corners, centers, radii, occ_of.astype(np.int64), np.cumsum(tile_ptr), tile_members
+
+
+def _hull_ok(k_pts, la, e, nrm) -> bool:
+    """Every point of ``k_pts (k, 3)`` strictly inside every edge ``la (L, 3) + t e (L, 3)``'s inner
+    half-plane (about ``nrm``), by 1e-9 of the lengths."""
+    rel = k_pts[None, :, :] - la[:, None, :]
+    side = (np.cross(e[:, None, :], rel) * nrm).sum(axis=2)
+    return len(k_pts) >= 3 and bool((side > 1e-9 * np.linalg.norm(e, axis=1)[:, None]
+                                     * np.linalg.norm(rel, axis=2)).all())
+
+
+def _fewer_sides(origin, e1, e2, uv, angle=1e-3):
+    """A convex polygon with few sides around the convex hull ``uv (h, 2)`` (counter-clockwise, in the
+    frame ``origin + u e1 + v e2``): runs of hull edges turning by less than ``angle`` (a float32-ragged
+    straight side) become one side, the supporting line of all hull points along the run's chord normal
+    pushed out by 1e-9 of the hull's size; ``(s, 3)`` corners, or None when fewer than 3 sides remain.
+    The result contains the hull; the caller checks it still lies in the tiling's kernel."""
+    h = len(uv)
+    edge = np.roll(uv, -1, axis=0) - uv
+    theta = np.arctan2(edge[:, 1], edge[:, 0])
+    turn = np.abs((np.roll(theta, -1) - theta + np.pi) % (2 * np.pi) - np.pi)     # at vertex i+1
+    brk = np.flatnonzero(np.roll(turn, 1) > angle)                                  # edges starting a side
+    if len(brk) < 3:
+        return None
+    size = float(np.ptp(uv, axis=0).max())
+    normals, offsets = [], []
+    for a, b in zip(brk, np.roll(brk, -1)):
+        chord = uv[b % h] - uv[a]
+        d = np.array([chord[1], -chord[0]]) / np.linalg.norm(chord)                 # outward
+        normals.append(d)
+        offsets.append((uv @ d).max() + 1e-9 * size)
+    normals, offsets = np.array(normals), np.array(offsets)
+    nxt = np.roll(np.arange(len(normals)), -1)
+    a_mat = np.stack([normals, normals[nxt]], axis=1)                               # (s, 2, 2)
+    corners = np.linalg.solve(a_mat, np.stack([offsets, offsets[nxt]], axis=1)[..., None])[..., 0]
+    return origin + corners[:, :1] * e1 + corners[:, 1:] * e2
 
 
 def _edge_separates(a_verts, a_counts, a_normals, b_verts, b_counts):
