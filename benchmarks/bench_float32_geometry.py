@@ -4,7 +4,8 @@
 
 Blender stores vertex coordinates as float32; the numeric boxes are float64. Prints, for the same
 polygons, the time of ``core.form_factors`` at light-polygon centroids (one process, ``workers=1``, after
-one call that prepares the scene) with the coordinates as built, rounded to float32 everywhere, on the
+one call that prepares the scene; that call's time and the number of merged occluders are shown too) with
+the coordinates as built, rounded to float32 everywhere, on the
 (rotated) blocks only, on the (axis-aligned) room only, and with the blocks' quads split into triangles.
 docs/first-pass.md ("Why the sample solves the numeric box") has the figures.
 """
@@ -21,6 +22,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from hemisphere_local_pass.core import Scene, form_factors  # noqa: E402
+from hemisphere_local_pass.core.chunk import scene_occluders  # noqa: E402
 from hemisphere_local_pass.first_pass import patch_quadrature  # noqa: E402
 from hemisphere_local_pass.scenes import cornell_box  # noqa: E402
 
@@ -29,10 +31,12 @@ def timed(vertices, polygons, emission, points):
     sc = Scene.from_polygons(vertices, polygons)
     q = patch_quadrature(sc, 1)
     idx = q.start[np.flatnonzero(emission.sum(axis=1) > 0)[:points]]
+    t = time.perf_counter()
     form_factors(sc, q.points[idx[:1]], q.normals[idx[:1]], workers=1)  # preparation
+    prep = time.perf_counter() - t
     t = time.perf_counter()
     f = form_factors(sc, q.points[idx], q.normals[idx], workers=1)
-    return time.perf_counter() - t, sc.n_input, float(np.abs(f.sum(axis=1) - 1).max())
+    return time.perf_counter() - t, prep, scene_occluders(sc).n, sc.n_input, float(np.abs(f.sum(axis=1) - 1).max())
 
 
 def main(argv=None):
@@ -60,10 +64,11 @@ def main(argv=None):
              ("blocks triangulated, float64", box.vertices, tri, tri_emission),
              ("blocks triangulated, float32", f32, tri, tri_emission)]
     print(f"# cornell_box({args.subdivisions}, block_detail=1.05), {args.points} light-centroid points, workers=1")
-    print("| coordinates | polygons | seconds | max abs(sum F - 1) |\n|---|---|---|---|")
+    print("| coordinates | polygons | occluders | preparation + 1 point (s) | points (s) | max abs(sum F - 1) |\n"
+          "|---|---|---|---|---|---|")
     for label, v, polys, em in cases:
-        secs, n, err = timed(v, polys, em, args.points)
-        print(f"| {label} | {n} | {secs:.2f} | {err:.1e} |", flush=True)
+        secs, prep, n_o, n, err = timed(v, polys, em, args.points)
+        print(f"| {label} | {n} | {n_o} | {prep:.2f} | {secs:.2f} | {err:.1e} |", flush=True)
 
 
 if __name__ == "__main__":

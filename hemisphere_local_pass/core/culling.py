@@ -174,7 +174,7 @@ def _components(n: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return parent
 
 
-def _merged_faces(scene: Scene):
+def _merged_faces(scene: Scene, *, cores: bool = False):
     """Merge coplanar, edge-connected convex polygons that tile one convex polygon (see the module doc).
 
     Vectorised over the whole scene (O(N log N) in the number of corners N): exact-coordinate vertex
@@ -185,6 +185,9 @@ def _merged_faces(scene: Scene):
     Returns ``members (n,)`` (occluder of every representative polygon, -1 for duplicates), and the
     occluders' vertex lists as ``occ_counts (n_o,)``, ``occ_points (Σ counts, 3)`` in occluder order
     (plane group, then first member; members of groups that do not merge are occluders on their own).
+    With ``cores``, components that do not merge get convex cores (:func:`_convex_cores`, appended
+    after the others) and a fourth array is returned, ``poly_core (n,)``: the core occluder of every
+    polygon of such a component (-1 elsewhere).
     """
     n = scene.n_polygons
     pv, pc = scene.poly_vertices, scene.poly_counts
@@ -383,7 +386,131 @@ def _merged_faces(scene: Scene):
     kk = np.flatnonzero(kept_mask)
     k_occ = merged_occ[lr[k_loop[kk]]]
     points[o_start[k_occ] + (kk - k_start[k_loop[kk]])] = k_pts[kk]
-    return members, counts_o, points
+    if not cores:
+        return members, counts_o, points
+    rejected = np.flatnonzero(~ok & (comp_size >= 9))
+    return _convex_cores(scene, order, root, rejected, members, counts_o, points)
+
+
+def _convex_cores(scene: Scene, reps, root, rejected, members, counts, points):
+    """Convex cores of coplanar tilings that do not merge because their outline is not convex.
+
+    Rounded to float32, the cells of a rotated block's flat top no longer have straight outer edges
+    (the vertices along an edge zigzag by ~3e-8 of its length): the union U is not convex and every cell
+    stayed an occluder of its own. The shadow volume of U is, exactly, the union of those of any convex
+    pieces that lie in U and cover it. Here: the *ring* (every cell with a vertex on U's outline, each
+    its own occluder) and the core K = the convex hull of the other cells' vertices, which covers them
+    and is accepted only when it lies in U: every vertex of K strictly (by 1e-9 of the lengths, far
+    above rounding) inside the inner half-plane of every outline edge, i.e. in U's kernel. Only
+    components whose cells are coplanar to rounding (:data:`PLANARITY_EPS`), bounded by one simple loop
+    without overlaps, qualify; the interior cells become K's members (K contains them), the ring cells
+    keep their occluders, and K never hides its own component's cells (they are coplanar with it).
+
+    ``reps`` (r,) the representative polygons, ``root`` (n,) their components, ``rejected`` the roots of
+    components that did not merge; returns ``members, counts, points`` (cores appended) and
+    ``poly_core (n,)``.
+    """
+    n = scene.n_polygons
+    pv, pc = scene.poly_vertices, scene.poly_counts
+    poly_core = np.full(n, -1)
+    if not len(rejected):
+        return members, counts, points, poly_core
+    n_o = len(counts)
+    o_start = np.cumsum(counts) - counts
+    by_root = reps[np.argsort(root[reps], kind="stable")]
+    r_sorted = root[by_root]
+    drop = np.zeros(n_o, dtype=bool)
+    cores, core_polys, core_comp = [], [], []
+    for r in rejected:
+        polys = by_root[np.searchsorted(r_sorted, r):np.searchsorted(r_sorted, r, side="right")]
+        if (members[polys] < 0).any() or (counts[members[polys]] != pc[polys]).any():
+            continue
+        nrm = scene.poly_normals[polys[0]]
+        corners = [pv[p, :pc[p]] for p in polys]
+        allv = np.concatenate(corners)
+        h = (allv - allv[0]) @ nrm
+        if 0.5 * (h.max() - h.min()) > PLANARITY_EPS * float(np.ptp(allv, axis=0).max()):
+            continue
+        _, vid = np.unique(allv, axis=0, return_inverse=True)
+        vid = vid.reshape(-1)
+        ids, at = [], 0
+        for c in corners:
+            ids.append(vid[at:at + len(c)])
+            at += len(c)
+        edges = {}
+        for p_ids in ids:
+            for a, b in zip(p_ids, np.roll(p_ids, -1)):
+                edges[(int(a), int(b))] = edges.get((int(a), int(b)), 0) + 1
+        if max(edges.values()) > 1:
+            continue                                                           # overlapping cells
+        succ = {}
+        for a, b in edges:
+            if (b, a) not in edges:
+                if a in succ:
+                    break
+                succ[a] = b
+        else:
+            loop = [next(iter(succ))]
+            while len(loop) <= len(succ) and succ.get(loop[-1], -1) != loop[0]:
+                loop.append(succ.get(loop[-1], -1))
+                if loop[-1] < 0:
+                    break
+            if len(loop) != len(succ) or loop[-1] < 0:
+                continue                                                       # holes, several loops
+            on_loop = np.zeros(int(vid.max()) + 1, dtype=bool)
+            on_loop[loop] = True
+            inner = np.array([not on_loop[p_ids].any() for p_ids in ids])
+            if not inner.any():
+                continue
+            # the hull of the interior cells' vertices, counter-clockwise about nrm (monotone chain)
+            ax = np.eye(3)[int(np.argmin(np.abs(nrm)))]
+            e1 = np.cross(nrm, ax)
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(nrm, e1)
+            pts = np.unique(np.concatenate([c for c, i in zip(corners, inner) if i]), axis=0)
+            rel = pts - pts[0]
+            uv = np.stack([rel @ e1, rel @ e2], axis=1)
+            srt = np.lexsort((uv[:, 1], uv[:, 0]))
+            hull = []
+            for sweep in (srt, srt[::-1]):
+                chain = []
+                for j in sweep:
+                    while len(chain) >= 2:
+                        o, a = uv[chain[-2]], uv[chain[-1]]
+                        if (a[0] - o[0]) * (uv[j][1] - o[1]) - (a[1] - o[1]) * (uv[j][0] - o[0]) > 0:
+                            break
+                        chain.pop()
+                    chain.append(j)
+                hull += chain[:-1]
+            # K in U's kernel: strictly inside every outline edge's inner half-plane; a core with few
+            # sides around the hull if it still is (the volumes' plane count is the occluders' largest)
+            first_of = np.full(int(vid.max()) + 1, -1)
+            first_of[vid[::-1]] = np.arange(len(vid))[::-1]
+            la = allv[first_of[loop]]
+            e = np.roll(la, -1, axis=0) - la
+            k_pts = _fewer_sides(pts[0], e1, e2, uv[hull])
+            if k_pts is None or not _hull_ok(k_pts, la, e, nrm):
+                k_pts = pts[hull]
+                if not _hull_ok(k_pts, la, e, nrm):
+                    continue
+            drop[members[polys[inner]]] = True
+            cores.append(k_pts)
+            core_polys.append(polys)
+            core_comp.append(polys[inner])
+    if not cores:
+        return members, counts, points, poly_core
+    keep = ~drop
+    new_index = np.cumsum(keep) - 1
+    kept_pts = np.concatenate([points[o_start[o]:o_start[o] + counts[o]] for o in np.flatnonzero(keep)]) \
+        if keep.any() else np.zeros((0, 3))
+    members = np.where(members >= 0, new_index[np.maximum(members, 0)], -1)
+    n_keep = int(keep.sum())
+    for j, (polys, inner_polys) in enumerate(zip(core_polys, core_comp)):
+        members[inner_polys] = n_keep + j
+        poly_core[polys] = n_keep + j
+    counts = np.concatenate([counts[keep], [len(c) for c in cores]]).astype(np.int64)
+    points = np.concatenate([kept_pts] + cores)
+    return members, counts, points, poly_core
 
 
 def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluders:
@@ -397,9 +524,10 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     step = step or (lambda name: None)
     n = scene.n_polygons
     if n:
-        members, counts, points = _merged_faces(scene)
+        members, counts, points, poly_core = _merged_faces(scene, cores=True)
     else:
         members, counts, points = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        poly_core = np.zeros(0, dtype=np.int64)
     n_loops = len(counts)
     kmax = int(counts.max(initial=3))
     # padded (n_o, kmax, 3): padding repeats the last vertex
@@ -483,6 +611,9 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
         # coplanar overlapping surfaces (duplicates, reversed copies): polygon i lies in the plane of
         # occluder o but is not part of it; the visibility stage lets one of them win where they overlap
         coplanar[np.arange(len(r)), mapped[r]] = False
+        core_r = poly_core[scene.dup_rep[r]]
+        has = np.flatnonzero(core_r >= 0)
+        coplanar[has, core_r[has]] = False             # a core never hides its own tiling's cells
         c_i, c_o = np.nonzero(coplanar)
         cis.append(c_i + start)
         cos.append(c_o)
@@ -504,6 +635,11 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     step("tiles")
     ci = np.concatenate(cis) if cis else np.zeros(0, dtype=np.int64)
     co = np.concatenate(cos) if cos else np.zeros(0, dtype=np.int64)
+    # only pairs that can overlap: coplanar neighbours that merely touch (the cells of a face that did
+    # not merge, e.g. a float32-rounded face whose boundary is no longer straight) never hide each other
+    keep = ~_separated(scene.poly_vertices[ci], scene.poly_counts[ci], scene.poly_normals[ci],
+                       verts[co], counts[co], normals[co])
+    ci, co = ci[keep], co[keep]
     cop_ptr = np.zeros(n + 1, dtype=np.int64)
     np.add.at(cop_ptr, ci + 1, 1)
     first_source = np.full(n_o, np.iinfo(np.int64).max)
@@ -583,6 +719,82 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     tile_ptr = np.zeros(len(corners) + 1, dtype=np.int64)
     np.add.at(tile_ptr, tile_of + 1, 1)
     return tile_of, corners, centers, radii, occ_of.astype(np.int64), np.cumsum(tile_ptr), tile_members
+
+
+def _hull_ok(k_pts, la, e, nrm) -> bool:
+    """Every point of ``k_pts (k, 3)`` strictly inside every edge ``la (L, 3) + t e (L, 3)``'s inner
+    half-plane (about ``nrm``), by 1e-9 of the lengths."""
+    rel = k_pts[None, :, :] - la[:, None, :]
+    side = (np.cross(e[:, None, :], rel) * nrm).sum(axis=2)
+    return len(k_pts) >= 3 and bool((side > 1e-9 * np.linalg.norm(e, axis=1)[:, None]
+                                     * np.linalg.norm(rel, axis=2)).all())
+
+
+def _fewer_sides(origin, e1, e2, uv, angle=1e-3):
+    """A convex polygon with few sides around the convex hull ``uv (h, 2)`` (counter-clockwise, in the
+    frame ``origin + u e1 + v e2``): runs of hull edges turning by less than ``angle`` (a float32-ragged
+    straight side) become one side, the supporting line of all hull points along the run's chord normal
+    pushed out by 1e-9 of the hull's size; ``(s, 3)`` corners, or None when fewer than 3 sides remain.
+    The result contains the hull; the caller checks it still lies in the tiling's kernel."""
+    h = len(uv)
+    edge = np.roll(uv, -1, axis=0) - uv
+    theta = np.arctan2(edge[:, 1], edge[:, 0])
+    turn = np.abs((np.roll(theta, -1) - theta + np.pi) % (2 * np.pi) - np.pi)     # at vertex i+1
+    brk = np.flatnonzero(np.roll(turn, 1) > angle)                                  # edges starting a side
+    if len(brk) < 3:
+        return None
+    size = float(np.ptp(uv, axis=0).max())
+    normals, offsets = [], []
+    for a, b in zip(brk, np.roll(brk, -1)):
+        chord = uv[b % h] - uv[a]
+        d = np.array([chord[1], -chord[0]]) / np.linalg.norm(chord)                 # outward
+        normals.append(d)
+        offsets.append((uv @ d).max() + 1e-9 * size)
+    normals, offsets = np.array(normals), np.array(offsets)
+    nxt = np.roll(np.arange(len(normals)), -1)
+    a_mat = np.stack([normals, normals[nxt]], axis=1)                               # (s, 2, 2)
+    corners = np.linalg.solve(a_mat, np.stack([offsets, offsets[nxt]], axis=1)[..., None])[..., 0]
+    return origin + corners[:, :1] * e1 + corners[:, 1:] * e2
+
+
+def _edge_separates(a_verts, a_counts, a_normals, b_verts, b_counts):
+    """(p,) bool: some edge line of convex polygon a has every vertex of b on its outer side or on it.
+
+    ``a_verts (p, K, 3)`` counter-clockwise about ``a_normals (p, 3)``, ``b_verts (p, K', 3)``; padding
+    repeats the last vertex (a zero edge, never separating; repeated b vertices change nothing). The
+    outward distance ``((e × n) · (v - a)) / |e|`` is exactly 0 for a vertex that *is* an endpoint of
+    the edge (shared vertices of a tiling); any other vertex must lie outside beyond rounding and the
+    coordinate noise of both, so a pair is only called separated when it surely is.
+    """
+    k = a_verts.shape[1]
+    nxt = np.where(np.arange(k)[None, :] + 1 < a_counts[:, None], np.arange(k)[None, :] + 1, 0)
+    a0 = a_verts
+    a1 = np.take_along_axis(a_verts, nxt[..., None], axis=1)
+    e = a1 - a0                                                                  # (p, K, 3)
+    out = np.cross(e, a_normals[:, None, :])                                     # outward, |out| = |e|
+    elen = np.linalg.norm(e, axis=2)                                             # (p, K)
+    rel = b_verts[:, None, :, :] - a0[:, :, None, :]                             # (p, K, K', 3)
+    d = np.einsum("pkc,pkjc->pkj", out, rel)                                     # |e| × distance
+    reach = np.abs(rel).max(axis=3)
+    noise = COORD_EPS * (np.abs(a_verts).max(axis=(1, 2)) + np.abs(b_verts).max(axis=(1, 2)))   # (p,)
+    tol = (_ROUNDING * reach + noise[:, None, None]) * elen[..., None]
+    on_end = (rel == 0).all(axis=3) | (b_verts[:, None, :, :] == a1[:, :, None, :]).all(axis=3)
+    outside = on_end | (d > tol)
+    return ((outside.all(axis=2)) & (elen > 0)).any(axis=1)
+
+
+def _separated(a_verts, a_counts, a_normals, b_verts, b_counts, b_normals):
+    """(p,) bool: coplanar convex polygons a and b surely share no area (a separating edge line of
+    either, see :func:`_edge_separates`; for two convex polygons in one plane one exists iff their
+    interiors are disjoint). Pairs are processed in blocks to bound the (p, K, K', 3) temporaries."""
+    p = len(a_counts)
+    res = np.zeros(p, dtype=bool)
+    step = max(1, int(2e6 // max(1, a_verts.shape[1] * b_verts.shape[1] * 3)))
+    for s in range(0, p, step):
+        sl = slice(s, s + step)
+        res[sl] = (_edge_separates(a_verts[sl], a_counts[sl], a_normals[sl], b_verts[sl], b_counts[sl])
+                   | _edge_separates(b_verts[sl], b_counts[sl], b_normals[sl], a_verts[sl], a_counts[sl]))
+    return res
 
 
 #: relative rounding of the plane distances in :func:`_beyond` (differences of coordinates and a unit

@@ -222,3 +222,29 @@ def test_chunks_split_to_the_budget():
                                        rtol=0, atol=1e-15)
         if use_clear:
             assert np.array_equal(np.sort(split[2][0].point), np.sort(whole[2][0].point))
+
+
+def test_float32_rounded_faces_get_convex_cores(monkeypatch):
+    """Rounded to float32, the cells of a rotated block's top have no straight outline and do not merge;
+    they get a convex core (the hull of the interior cells, in the tiling's kernel) plus their ring of
+    outline cells: fewer occluders, the same form factors (to 1e-13) as with every cell on its own, and
+    ΣF = 1 in the closed box."""
+    from hemisphere_local_pass.core import culling
+
+    box = cornell_box(15, block_detail=1.05)                 # block tops of 5 x 5 cells: 3 x 3 inside
+    sc = Scene.from_polygons(box.vertices.astype(np.float32).astype(np.float64), box.polygons)
+    occ = culling.build_occluders(sc)
+    monkeypatch.setattr(culling, "_convex_cores", lambda scene, reps, root, rejected, m, c, p:
+                        (m, c, p, np.full(scene.n_polygons, -1)))
+    plain = culling.build_occluders(sc)
+    names = np.array(box.names)[sc.poly_source]
+    top = [i for i in range(sc.n_polygons) if "block" in names[i] and sc.poly_normals[i, 2] > 0.999]
+    assert occ.n == plain.n - 2 * (9 - 1) and len(np.unique(occ.members[top])) < len(top)
+    rng = np.random.default_rng(3)
+    blocks = np.flatnonzero(np.char.find(names.astype(str), "block") >= 0)
+    sel = np.concatenate([rng.choice(top, 2), rng.choice(blocks, 2), rng.choice(sc.n_polygons, 3)])
+    p, n = sc.poly_centers[sel], sc.poly_normals[sel]
+    f = form_factors(sc, p, n, workers=1, occluders=occ)
+    ref = form_factors(sc, p, n, workers=1, occluders=plain)
+    assert np.abs(f - ref).max() <= 1e-13
+    assert np.abs(f.sum(axis=1) - 1).max() <= 1e-12
