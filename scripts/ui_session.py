@@ -221,7 +221,9 @@ def session():
     shot("ui_other_engine.png")
     log("panels")
 
-    # 2. the modal job
+    # 2. the modal job; 3x3 rays per pixel so that it runs long enough to be seen mid-run (on an idle machine
+    # with the hierarchy and 2 workers the 16x16 job ends in 0.4 s, before a 0.05 s poll sees 20 %)
+    scene.hlp_settings.samples = 3
     with bpy.context.temp_override(window=win, area=props, region=next(r for r in props.regions if r.type == 'WINDOW')):
         started = bpy.ops.hlp.render_local_pass('INVOKE_DEFAULT')
     t0 = time.time()
@@ -240,6 +242,7 @@ def session():
     shown = editor.spaces.active.image.name if editor is not None and editor.spaces.active.image else None
     yield 0.5
     shot("ui_result.png")
+    scene.hlp_settings.samples = 1
     log("modal", started=list(started), first=first, second=second, finished=ok, shown=shown,
         summary=run.report.summary() if run.report else None, seconds=time.time() - t0)
 

@@ -239,7 +239,9 @@ def test_unwritable_places_give_their_real_reason(hlp, tmp_path):
         closed = os.path.join(base, "closed")
         os.mkdir(closed, 0o700)
         code = ("import sys, os, errno, pwd, stat, tempfile, zipfile; sys.path.insert(0, sys.argv[1])\n"
-                "from hemisphere_local_pass.blender import outputs as o\n"
+                # output_paths too before setuid: a checkout nobody may read (a 0700 mktemp clone, as CI's)
+                # cannot import it afterwards
+                "from hemisphere_local_pass.blender import outputs as o, output_paths  # noqa: F401\n"
                 "if os.getuid() == 0: os.setgid(65534); os.setuid(65534)\n"  # root writes anywhere: be nobody
                 "for p in sys.argv[2:]:\n"
                 "    try: o.check_writable(p)\n"
