@@ -24,21 +24,7 @@ import pytest
 from hemisphere_local_pass.core import Scene, form_factors, visibility
 from hemisphere_local_pass.core.chunk import prepare_scene
 from hemisphere_local_pass.core.visibility import _cluster_pairs, _cluster_pairs_dense, coverage, shadow_volumes
-
-
-def uv_sphere(nu, nv, r=1.0):
-    """A closed UV sphere of ``nu × nv`` faces (triangles at the poles), faces outward."""
-    th = np.linspace(0, np.pi, nv + 1)
-    ph = np.linspace(0, 2 * np.pi, nu + 1)[:-1]
-    t, p = np.meshgrid(th, ph, indexing="ij")
-    v = r * np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1).reshape(-1, 3)
-    polys = []
-    for i in range(nv):
-        for j in range(nu):
-            a, b = i * nu + j, i * nu + (j + 1) % nu
-            c, d = (i + 1) * nu + (j + 1) % nu, (i + 1) * nu + j
-            polys.append([a, d, c] if i == 0 else [a, d, b] if i == nv - 1 else [a, d, c, b])
-    return v, polys
+from hemisphere_local_pass.scenes import uv_sphere
 
 
 def _with_occluders(v, polys):
