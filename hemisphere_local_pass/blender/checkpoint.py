@@ -16,7 +16,7 @@ import numpy as np
 
 __all__ = ["CHECKPOINT_VERSION", "Checkpoint", "digest"]
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2  # 2: the error bound of H (far field) is stored too
 
 
 def digest(*arrays) -> str:
@@ -42,6 +42,7 @@ class Checkpoint:
         self.done = np.zeros(n_chunks, dtype=bool)
         self.h = np.zeros((m, 3))
         self.fsum = np.zeros(m)
+        self.bound = np.zeros((m, 3))  # bound on |H - exact H| (W m^-2), 0 where exact
 
     def load(self) -> bool:
         """Take over a matching checkpoint file; False when there is none or it belongs to another job."""
@@ -55,6 +56,7 @@ class Checkpoint:
                 self.done[:] = z["done"]
                 self.h[:] = z["h"]
                 self.fsum[:] = z["fsum"]
+                self.bound[:] = z["bound"]
         except (OSError, KeyError, ValueError):
             return False
         return True
@@ -67,7 +69,7 @@ class Checkpoint:
         def write(tmp):
             with open(tmp, "wb") as fh:
                 np.savez(fh, fingerprint=np.array(self.fingerprint), chunk=np.array(self.chunk), done=self.done,
-                         h=self.h, fsum=self.fsum, version=np.array(CHECKPOINT_VERSION))
+                         h=self.h, fsum=self.fsum, bound=self.bound, version=np.array(CHECKPOINT_VERSION))
 
         replace_atomically(self.path, write)
 

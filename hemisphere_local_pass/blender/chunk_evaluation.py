@@ -1,5 +1,5 @@
-"""One chunk of receivers through the core: H (m, 3) and sum F (m,), and the scene's preparation
-as a stage of its own before the first chunk.
+"""One chunk of receivers through the core: H (m, 3), sum F (m,) and the bound on H's error (m, 3),
+and the scene's preparation as a stage of its own before the first chunk.
 
 Written for Python 3.10+ (Debian's Blender 3.4): no newer syntax.
 """
@@ -30,8 +30,13 @@ def prepare(exported, points, normals, limit, progress, cancel):
     prepare_scene(sc, progress=step, cancel=cancel)
 
 
-def evaluate_chunk(exported, points, normals, limit, progress, cancel, executor=None):
-    """H (m, 3) and sum F (m,) at the receivers.
+def evaluate_chunk(exported, points, normals, limit, progress, cancel, executor=None, tolerance=0.0):
+    """``(H (m, 3), sum F (m,), error bound (m, 3))`` at the receivers (W m^-2; bound 0: exact).
+
+    ``tolerance > 0`` (absolute, W m^-2 per channel): one ``core.irradiance`` call with the
+    error-bounded far field (:mod:`..core.far_field`; exact where the scene has linear radiance), the
+    bound it used per receiver and channel, and sum F not computed (NaN): the form factors would cost
+    what the exact irradiance costs.
 
     In general two core calls: ``core.irradiance`` (front sides emit, linear radiance integrated
     exactly) and ``core.form_factors``. When the radiance is constant, no receiver has a limit
@@ -45,6 +50,10 @@ def evaluate_chunk(exported, points, normals, limit, progress, cancel, executor=
     scene = exported.scene
     # the job's own pool (or this process): the core starts no pool per call
     kw = {"limit_directions": limit, "cancel": cancel, "workers": 1, "executor": executor}
+    exact = np.zeros((len(points), 3))
+    if tolerance > 0:
+        h, stats = irradiance(scene, points, normals, tolerance=tolerance, return_stats=True, **kw)
+        return h, np.full(len(points), np.nan), stats.error_bound
     fast = constant_planes(exported) if limit is None else None
     if fast is not None:
         normals_in, offsets_in, radiance_in = fast
@@ -56,12 +65,12 @@ def evaluate_chunk(exported, points, normals, limit, progress, cancel, executor=
             ff_lit = ff
         # einsum's own loops (not BLAS): each row's sum is independent of the chunk's other rows
         h = np.einsum("mn,nc->mc", ff_lit, radiance_in, optimize=False)
-        return np.pi * h, ff.sum(axis=1)  # the core's irradiance is eq. 1: H = pi sum L F
+        return np.pi * h, ff.sum(axis=1), exact  # the core's irradiance is eq. 1: H = pi sum L F
     h = irradiance(scene, points, normals, **kw)
     if progress is not None:
         progress(1, 2)
     ff = form_factors(scene, points, normals, **kw)  # (m, n_input)
-    return h, ff.sum(axis=1)
+    return h, ff.sum(axis=1), exact
 
 
 def constant_planes(exported):

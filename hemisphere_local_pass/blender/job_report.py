@@ -52,8 +52,9 @@ class JobReport:
     objects: list = field(default_factory=list, repr=False)
     result: dict = field(default_factory=dict, repr=False)
     exact_points: int | None = None       # adaptive pass: exact evaluations (None: every point exact)
-    tolerance: float | None = None        # adaptive pass: the absolute tolerance on H used
-    error_estimate: float | None = None   # adaptive pass: largest per-pixel error estimate of H
+    tolerance: float | None = None        # adaptive pass / far field: the absolute tolerance on H used
+    error_estimate: float | None = None   # adaptive pass: largest per-pixel error estimate of H;
+    #                                       vertices' far field: largest error bound of H
 
     @property
     def points_per_second(self) -> float:
@@ -63,7 +64,9 @@ class JobReport:
     def summary(self) -> str:
         """One line for the UI and the command line."""
         parts = [f"{self.points} points in {self.seconds:.1f} s ({self.points_per_second:.0f} points/s)"]
-        if self.exact_points is None:
+        if self.exact_points is None and self.tolerance is not None:
+            parts.append(f"far field: error bound <= {self.error_estimate:.2e} (tolerance {self.tolerance:.2e} W/m2)")
+        elif self.exact_points is None:
             parts.append(f"max |sum F - 1| = {self.max_form_factor_error:.2e}")
         else:
             parts.append(f"adaptive: {self.exact_points} exact, estimated error <= {self.error_estimate:.2e} "

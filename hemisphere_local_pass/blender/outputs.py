@@ -47,6 +47,7 @@ __all__ = [
     "write_png",
     "write_vertex_colours",
     "make_active_colour",
+    "owns_attribute",
     "prepare_vertex_attribute",
 ]
 
@@ -449,6 +450,11 @@ def prepare_vertex_attribute(mesh, name: str, domain: str, *, protected=(), expl
         mesh_note = f" (on its mesh '{mesh.name}')" if owner and owner != mesh.name else ""
         raise ValueError(f"{who} already has a user attribute '{name}'{mesh_note}; it is not overwritten: "
                          f"choose another name ({where}), or rename yours")
+
+
+def owns_attribute(mesh, name: str) -> bool:
+    """``name`` exists on ``mesh`` and was created by this extension (see :func:`prepare_vertex_attribute`)."""
+    return mesh.attributes.get(name) is not None and name in list(mesh.get(OWNED_KEY, []))
 
 
 def make_active_colour(mesh, name: str):

@@ -56,6 +56,7 @@ class HLP_PT_local_pass(HLP_RenderButtonsPanel, bpy.types.Panel):
             col = layout.column(heading="Output")
             col.prop(settings, "radiance_attribute", text="Radiance Attribute")
             col.prop(settings, "irradiance_attribute", text="Irradiance Attribute")
+            col.prop(settings, "tolerance")
 
         layout.prop(settings, "workers")
         layout.operator(HLP_OT_render_local_pass.bl_idname, icon='RENDER_STILL')

@@ -126,6 +126,10 @@ def local_pass_steps(
             ``error_estimate`` and ``exact_sample`` layers show where it interpolated. The adaptive
             pass neither checkpoints nor computes the ``form_factor_sum`` layer (NaN there); it yields
             a step every ``adaptive_pixels.POLL_SECONDS`` while its core calls run in a thread.
+            Vertices mode: 0 is exact; > 0 (relative to the receivers' mean irradiance, estimated from
+            exact values at ``vertices_pass.MEAN_POINTS`` of them) runs the core's error-bounded far
+            field; the bound used goes into ``<irradiance attribute>_bound`` and ``report.error_estimate``
+            (sum F is not computed: ``max_form_factor_error`` is NaN).
 
     Returns:
         :class:`JobReport`.
@@ -230,7 +234,7 @@ def local_pass_steps(
                                                           or pick(None, "irradiance_attribute", "")
                                                           or "hlp_irradiance"), output=output,
                                     resume=resume, progress=progress, cancel=cancel, explicit_targets=explicit,
-                                    objects=objects)
+                                    objects=objects, tolerance=tolerance)
     finally:
         report.seconds = time.perf_counter() - start
         stage(progress, None)

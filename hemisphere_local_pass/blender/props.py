@@ -72,8 +72,9 @@ class HLP_PG_settings(bpy.types.PropertyGroup):
     tolerance: FloatProperty(
         name="Tolerance",
         description=(
-            "Adaptive pass: largest error of the irradiance relative to the image's mean irradiance "
-            "(e.g. 0.001); pixels in between exact samples are interpolated. 0 evaluates every pixel exactly"
+            "Largest error of the irradiance relative to its mean (e.g. 0.001); 0 is exact. Pixels: the adaptive "
+            "pass interpolates between exact samples. Vertices: the error-bounded far field; its bound is written "
+            "to the attribute '<Irradiance Attribute>_bound'"
         ),
         default=0.0,
         min=0.0,

@@ -65,8 +65,11 @@ class ChunkProgress:
             self.callback(self.base, self.total)
 
 
-def compute_chunks(exported, points, normals, limit, *, checkpoint_path, fingerprint, resume, progress, cancel, report):
-    """Evaluate all receivers chunk by chunk with checkpointing -> (H (m, 3), sum F (m,))."""
+def compute_chunks(exported, points, normals, limit, *, checkpoint_path, fingerprint, resume, progress, cancel, report,
+                   tolerance=0.0):
+    """Evaluate all receivers chunk by chunk with checkpointing -> the :class:`.checkpoint.Checkpoint`
+    (``h (m, 3)``, ``fsum (m,)``, ``bound (m, 3)``). ``tolerance``: see :func:`.evaluate_chunk` (it
+    belongs in ``fingerprint``)."""
     from ..core import Cancelled
 
     m = len(points)
@@ -84,15 +87,16 @@ def compute_chunks(exported, points, normals, limit, *, checkpoint_path, fingerp
             prepare(exported, points[s0:], normals[s0:], None if limit is None else limit[s0:], progress, cancel)
             stage(progress, f"computing {m - report.resumed_points} points")
         if workers > 1:
-            yield from compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel)
+            yield from compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel,
+                                          tolerance)
             return ck
         for c in todo:
             if cancel is not None and cancel():
                 raise Cancelled("local pass cancelled")
             s, e = c * chunk, min(m, (c + 1) * chunk)
             lim = None if limit is None else limit[s:e]
-            h, fs = evaluate_chunk(exported, points[s:e], normals[s:e], lim, prog.inner(e - s), cancel)
-            ck.h[s:e], ck.fsum[s:e] = h, fs
+            ck.h[s:e], ck.fsum[s:e], ck.bound[s:e] = evaluate_chunk(exported, points[s:e], normals[s:e], lim,
+                                                                    prog.inner(e - s), cancel, tolerance=tolerance)
             ck.done[c] = True
             ck.save()
             prog.advance(e - s)

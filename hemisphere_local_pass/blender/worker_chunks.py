@@ -12,7 +12,7 @@ from .job_report import JobStep
 __all__ = ["compute_on_workers"]
 
 
-def compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel):
+def compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog, cancel, tolerance=0.0):
     """The job's chunks on a pool of ``workers`` processes: each chunk is the same core call as in one
     process (so the same bits), several at once (one parent thread each, which only waits), results
     saved in this thread as they finish. ``progress`` and ``cancel`` run in this thread only (they may
@@ -31,7 +31,7 @@ def compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog
     def one(c):
         s, e = c * chunk, min(m, (c + 1) * chunk)
         lim = None if limit is None else limit[s:e]
-        return evaluate_chunk(exported, points[s:e], normals[s:e], lim, None, stop.is_set, pool)
+        return evaluate_chunk(exported, points[s:e], normals[s:e], lim, None, stop.is_set, pool, tolerance)
 
     threads = cf.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="hlp-job")
     inflight = {}
@@ -47,7 +47,7 @@ def compute_on_workers(exported, points, normals, limit, ck, todo, workers, prog
                     raise pool.failure  # another chunk's worker died and stopped the pool: say that
                 c = inflight.pop(fut)
                 s, e = c * chunk, min(m, (c + 1) * chunk)
-                ck.h[s:e], ck.fsum[s:e] = fut.result()
+                ck.h[s:e], ck.fsum[s:e], ck.bound[s:e] = fut.result()
                 ck.done[c] = True
                 ck.save()
                 prog.advance(e - s)

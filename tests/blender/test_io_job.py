@@ -472,3 +472,53 @@ def test_back_of_an_emitter_emits_only_when_double_sided(hlp, double_sided):
         assert (res["irradiance"] > 0).all()
     else:
         np.testing.assert_array_equal(res["irradiance"], 0.0)
+
+
+def read_colours(mesh, name):
+    got = np.empty(len(mesh.attributes[name].data) * 4, dtype=np.float32)
+    mesh.attributes[name].data.foreach_get("color", got)
+    return got.reshape(-1, 4)[:, :3].astype(np.float64)
+
+
+def test_vertices_with_a_tolerance_run_the_bounded_far_field(hlp):
+    """Vertices mode with a tolerance: the core's far field, its bound written next to H and within the
+    tolerance, the measured error within the bound; an exact rerun zeroes our bound; a user's attribute of
+    that name is refused, not overwritten."""
+    from hemisphere_local_pass.scenes.cornell_box import cornell_box
+
+    box = cornell_box(4)
+    names = np.array(box.names)
+    values = np.zeros((box.n_polygons, 3))
+    rng = np.random.default_rng(5)
+    for part in dict.fromkeys(box.names):  # one radiance per wall: whole walls become far-field proxies
+        values[names == part] = 0.05 + 0.5 * rng.random(3)
+    values += box.emission
+    scene, box, values = sample_module().build(4, resolution=10, reset=False, radiosity=values)
+    floor = bpy.data.objects["Floor"]
+    for ob in scene.objects:
+        ob.select_set(ob is floor)
+    job = hlp["job"]
+    rep = job.run_local_pass(mode="vertices", tolerance=1e-3)
+    h = rep.result["Floor"][2]
+    bound = read_colours(floor.data, "hlp_irradiance_bound")
+    assert "Floor:hlp_irradiance_bound" in rep.outputs and "far field: error bound" in rep.summary()
+    assert np.isnan(rep.max_form_factor_error)
+    assert 0 < rep.error_estimate <= rep.tolerance and rep.tolerance == pytest.approx(1e-3 * h.mean(), rel=0.5)
+    assert bound.shape == h.shape
+    exact = job.run_local_pass(mode="vertices")  # the same corners, exact
+    h0 = exact.result["Floor"][2]
+    err = np.abs(h - h0)
+    assert bound.max() > 0 and err.max() > 0, "the far field should have left something out here"
+    assert (err <= bound.astype(np.float32).astype(np.float64) * (1 + 1e-6) + 1e-12).all(), err.max()
+    assert exact.error_estimate is None and exact.max_form_factor_error < 1e-9
+    assert (read_colours(floor.data, "hlp_irradiance_bound") == 0).all()  # ours, rewritten: exact now
+    # a user's own attribute of that name: an exact run leaves it alone, a tolerance run refuses
+    floor.data.attributes.remove(floor.data.attributes["hlp_irradiance_bound"])
+    floor.data["hlp_owned_attributes"] = [n for n in floor.data["hlp_owned_attributes"] if n != "hlp_irradiance_bound"]
+    mine = floor.data.attributes.new("hlp_irradiance_bound", "FLOAT_COLOR", "CORNER")
+    mine.data.foreach_set("color", np.full(len(mine.data) * 4, 0.25, dtype=np.float32))
+    job.run_local_pass(mode="vertices")
+    assert (read_colours(floor.data, "hlp_irradiance_bound") == 0.25).all()
+    with pytest.raises(ValueError, match="object 'Floor' already has a user attribute 'hlp_irradiance_bound'"):
+        job.run_local_pass(mode="vertices", tolerance=1e-3)
+    assert (read_colours(floor.data, "hlp_irradiance_bound") == 0.25).all()
