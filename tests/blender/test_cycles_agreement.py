@@ -29,7 +29,6 @@ image is 48-51 % off (max |z| 17-43), with the core's own n-gon triangulation 25
 
 import importlib
 import importlib.util
-import os
 import time
 
 import numpy as np
@@ -37,19 +36,14 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from sample_loader import sample_module  # noqa: E402
+
 RESOLUTION = 48
 SUBDIVISIONS = 4  # 172 polygons
 SEEDS = 8
 SAMPLES = 256  # per seed
 
 
-def sample_module():
-    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box_cycles",
-                                                  os.path.join(ROOT, "sample_scenes", "cornell_box.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def cycles_material(name, rho, emit):

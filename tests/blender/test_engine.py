@@ -15,18 +15,12 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from conftest import MODULE  # noqa: E402
+from sample_loader import sample_module  # noqa: E402
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ENGINE_ID = "HEMISPHERE_LOCAL_PASS"
 EXTRA_PASSES = ("Depth", "Irradiance", "Form Factor Sum", "Error Estimate", "Exact Samples", "IndexOB")
 
 
-def sample_module():
-    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box", os.path.join(ROOT, "sample_scenes",
-                                                                                        "cornell_box.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.fixture

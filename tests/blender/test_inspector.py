@@ -4,7 +4,6 @@ overlay's pixels: tests/blender_exe/test_ui.py under Xvfb.)"""
 
 import importlib
 import importlib.util
-import os
 import sys
 
 import numpy as np
@@ -13,8 +12,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from conftest import MODULE  # noqa: E402
-
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from sample_loader import sample_module  # noqa: E402
 
 
 @pytest.fixture
@@ -23,11 +21,7 @@ def inspector(extension, scene):
 
 
 def build_box():
-    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box", os.path.join(ROOT, "sample_scenes",
-                                                                                        "cornell_box.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    mod.build(2, resolution=8, reset=False)
+    sample_module().build(2, resolution=8, reset=False)
     return bpy.context.scene
 
 

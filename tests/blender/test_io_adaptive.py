@@ -3,22 +3,13 @@ error-estimate and exact-sample layers, against the all-exact job on the same Co
 
 import importlib
 import importlib.util
-import os
 
 import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-
-def sample_module():
-    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box_adaptive",
-                                                  os.path.join(ROOT, "sample_scenes", "cornell_box.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from sample_loader import sample_module  # noqa: E402
 
 
 @pytest.fixture

@@ -10,16 +10,11 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from sample_loader import sample_module  # noqa: E402
+
 TOL = 1e-9
 
 
-def sample_module():
-    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box", os.path.join(ROOT, "sample_scenes",
-                                                                                        "cornell_box.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.fixture

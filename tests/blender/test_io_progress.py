@@ -4,7 +4,6 @@ once a second, so a minute of export or preparation is never a minute of silence
 
 import importlib
 import importlib.util
-import os
 import threading
 import time
 
@@ -12,17 +11,14 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from sample_loader import sample_module  # noqa: E402
+
 SLOW = 2.6  # seconds the export is made to take
 
 
 @pytest.fixture
 def job(extension, scene):
-    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box_progress",
-                                                  os.path.join(ROOT, "sample_scenes", "cornell_box.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    mod.build(1, resolution=6, reset=False)
+    sample_module().build(1, resolution=6, reset=False)
     return importlib.import_module(extension.__name__ + ".blender.job")
 
 

@@ -5,7 +5,6 @@ attributes. (Timers, Esc and the status bar need a window: tests/blender_exe/tes
 
 import importlib
 import importlib.util
-import os
 import threading
 
 import numpy as np
@@ -13,7 +12,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from sample_loader import sample_module  # noqa: E402
 
 
 @pytest.fixture
@@ -24,11 +23,7 @@ def hlp(extension, scene):
 
 
 def build_box(resolution=8):
-    spec = importlib.util.spec_from_file_location("hlp_sample_cornell_box", os.path.join(ROOT, "sample_scenes",
-                                                                                        "cornell_box.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    mod.build(2, resolution=resolution, reset=False)
+    sample_module().build(2, resolution=resolution, reset=False)
     return bpy.context.scene
 
 

@@ -1,6 +1,5 @@
 """Every sample scene's script builds its scene, solves the first pass and saves a .blend (small settings)."""
 
-import importlib.util
 import os
 
 import numpy as np
@@ -8,15 +7,14 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from sample_loader import sample_module  # noqa: E402
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SAMPLES = os.path.join(ROOT, "sample_scenes")
 
 
 def load(name):
-    spec = importlib.util.spec_from_file_location(f"hlp_sample_{name}", os.path.join(SAMPLES, f"{name}.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return sample_module(name)
 
 
 def check_solved(min_meshes):
