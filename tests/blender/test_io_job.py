@@ -432,6 +432,14 @@ def test_cli_vertices_saves_a_blend(hlp, tmp_path, capsys):
     attrs = bpy.data.objects["Floor"].data.attributes
     assert attrs["hlp_radiance"].domain == "CORNER" and "hlp_irradiance" in attrs
     assert "hlp_radiance" not in bpy.data.objects["Ceiling"].data.attributes
+    assert "hlp_irradiance_bound" not in attrs  # exact: no bound attribute
+    # with a tolerance: the far field, its bound saved and the summary saying so
+    capsys.readouterr()
+    out2 = str(tmp_path / "baked_far.blend")
+    assert job.cli_main(["render", "--mode", "vertices", "--objects", "Floor", "--tolerance", "1e-3", "-o", out2]) == 0
+    assert "far field: error bound <= " in capsys.readouterr().out
+    bpy.ops.wm.open_mainfile(filepath=out2)
+    assert bpy.data.objects["Floor"].data.attributes["hlp_irradiance_bound"].domain == "CORNER"
 
 
 @pytest.mark.parametrize("double_sided", [False, True])
