@@ -53,10 +53,11 @@ def rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def one(faces: int, points: int, dense: bool, outside: bool = False) -> dict:
-    from hemisphere_local_pass.core import Scene, irradiance, visibility
+def one(faces: int, points: int, tables: bool, outside: bool = False) -> dict:
+    from hemisphere_local_pass.core import Scene, culling, irradiance
     from hemisphere_local_pass.core.chunk import prepare_scene
 
+    culling.PER_PAIR_DEPTH_FROM = None if tables else 0
     nu = int(round(np.sqrt(2 * faces)))
     v, p = uv_sphere(nu, nu // 2)
     if not outside:
@@ -65,53 +66,60 @@ def one(faces: int, points: int, dense: bool, outside: bool = False) -> dict:
     t = time.perf_counter()
     occ = prepare_scene(sc)
     out = {"faces": sc.n_polygons, "merged": int(len(occ.counts)), "prep_s": time.perf_counter() - t,
-           "prep_rss_mb": rss_mb(), "points": points}
+           "prep_rss_mb": rss_mb(), "points": points, "per_pair": occ.depth is not None}
     d = np.random.default_rng(1).normal(size=(points, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts, nrm = (3.0 if outside else 0.9) * d, -d
-    h = {}
-    for mode in ("sparse", "dense") if dense else ("sparse",):
-        visibility.DENSE_COVERAGE = mode == "dense"
-        t = time.perf_counter()
-        h[mode] = irradiance(sc, pts, nrm, workers=1)
-        out[f"{mode}_ms"] = (time.perf_counter() - t) / points * 1e3
-        out[f"{mode}_rss_mb"] = rss_mb()
-    visibility.DENSE_COVERAGE = False
+    t = time.perf_counter()
+    h = irradiance(sc, pts, nrm, workers=1)
+    out["ms"] = (time.perf_counter() - t) / points * 1e3
+    out["rss_mb"] = rss_mb()
+    out["H"] = h.tolist()
     # inside, closed, radiance 0.5: H = pi/2; outside, facing the centre at 3 r: H ~ pi/2 (1/3)^2 (a round
     # sphere's; the faceted one is a little smaller)
-    out["H_err"] = float(np.abs(h["sparse"] - 0.5 * np.pi / (9.0 if outside else 1.0)).max())
-    if dense:
-        out["max_dH"] = float(np.abs(h["sparse"] - h["dense"]).max())
+    out["H_err"] = float(np.abs(h - 0.5 * np.pi / (9.0 if outside else 1.0)).max())
     return out
+
+
+def run(faces, points, tables, outside):
+    cmd = [sys.executable, __file__, "--one", str(faces), "--points", str(points)] + (
+        ["--tables"] if tables else []) + (["--outside"] if outside else [])
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    if r.returncode:
+        return {"error": (r.stderr.strip().splitlines() or ["?"])[-1]}
+    return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--faces", default="512,2048,8192")
+    ap.add_argument("--faces", default="512,2048,8192,32768")
     ap.add_argument("--points", type=int, default=32)
-    ap.add_argument("--dense-max", type=int, default=2048)
+    ap.add_argument("--old-max", type=int, default=8192, help="largest face count also run with the tables")
     ap.add_argument("--outside", action="store_true", help="receivers outside the sphere, facing it (at 3 r)")
     ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
-    ap.add_argument("--dense", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--tables", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.one:
-        print(json.dumps(one(a.one, a.points, a.dense, a.outside)))
+        print(json.dumps(one(a.one, a.points, a.tables, a.outside)))
         return
     print(f"load average {open('/proc/loadavg').read().split()[:3]}; receivers {'outside' if a.outside else 'inside'}")
-    print(f"{'faces':>6} {'merged':>6} {'prep s':>7} {'prep RSS':>9} {'ms/pt new':>9} {'RSS new':>8} "
-          f"{'ms/pt old':>9} {'RSS old':>8} {'old/new':>7} {'max|dH|':>8} {'|H-ref|':>8}")
+    print(f"{'faces':>6} {'prep s old':>10} {'prep s new':>10} {'old/new':>7} {'RSS old':>8} {'RSS new':>8} "
+          f"{'ms/pt old':>9} {'ms/pt new':>9} {'max|dH|':>8} {'|H-ref|':>8}")
     for f in (int(x) for x in a.faces.split(",")):
-        cmd = [sys.executable, __file__, "--one", str(f), "--points", str(a.points)] + (
-            ["--dense"] if f <= a.dense_max else []) + (["--outside"] if a.outside else [])
-        r = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
-        if r.returncode:
-            print(f"{f:>6} failed: {r.stderr.strip().splitlines()[-1:]}")
+        new = run(f, a.points, False, a.outside)
+        old = run(f, a.points, True, a.outside) if f <= a.old_max else None
+        if "error" in new:
+            print(f"{f:>6} failed: {new['error']}")
             continue
-        o = json.loads(r.stdout.strip().splitlines()[-1])
-        old = (f"{o['dense_ms']:9.1f} {o['dense_rss_mb']:7.0f}M {o['dense_ms'] / o['sparse_ms']:6.1f}x "
-               f"{o['max_dH']:8.1e}") if "dense_ms" in o else f"{'-':>9} {'-':>8} {'-':>7} {'-':>8}"
-        print(f"{o['faces']:>6} {o['merged']:>6} {o['prep_s']:7.1f} {o['prep_rss_mb']:8.0f}M {o['sparse_ms']:9.1f} "
-              f"{o['sparse_rss_mb']:7.0f}M {old} {o['H_err']:8.1e}", flush=True)
+        if old is None or "error" in old:
+            why = "-" if old is None else "failed"
+            print(f"{new['faces']:>6} {why:>10} {new['prep_s']:10.2f} {'-':>7} {'-':>8} {new['rss_mb']:7.0f}M "
+                  f"{'-':>9} {new['ms']:9.1f} {'-':>8} {new['H_err']:8.1e}", flush=True)
+            continue
+        dh = float(np.abs(np.array(new["H"]) - np.array(old["H"])).max())
+        print(f"{new['faces']:>6} {old['prep_s']:10.2f} {new['prep_s']:10.2f} {old['prep_s'] / new['prep_s']:6.1f}x "
+              f"{old['rss_mb']:7.0f}M {new['rss_mb']:7.0f}M {old['ms']:9.1f} {new['ms']:9.1f} {dh:8.1e} "
+              f"{new['H_err']:8.1e}", flush=True)
 
 
 if __name__ == "__main__":

@@ -445,3 +445,35 @@ def beyond_lists(faces: Bodies) -> BeyondLists:
     ptr = np.cumsum(ptr.ravel()).reshape(2, n_o + 1)
     ptr[1] -= ptr[1, 0] - ptr[0, -1]                     # side 1 starts where side 0 ends
     return BeyondLists(ptr, k, is_open)
+
+
+def tree_above(faces: Bodies, o0: np.ndarray, nrm: np.ndarray, thr: np.ndarray, cap: int = 256):
+    """For planes ``o0 + x, nrm · x = 0`` (E of them, unit ``nrm (E, 3)``): the faces that may have a vertex x
+    with ``nrm · (x - o0) > thr`` (a search of :func:`_tree`: a node is kept while its bound reaches
+    ``thr``, to rounding). Returns ``(e, k)`` candidate (plane, face) pairs and ``(E,)`` bool: planes
+    whose search kept more than ``cap`` nodes at some level (no candidates listed for them)."""
+    n_e = len(thr)
+    many = np.zeros(n_e, dtype=bool)
+    levels, order = _tree(faces)
+    e = np.arange(n_e)
+    node = np.zeros(n_e, dtype=np.int64)
+    o0t, nt = np.ascontiguousarray(o0.T), np.ascontiguousarray(nrm.T)
+    for lv, lvl in enumerate(levels):
+        nv = nt[:, e]
+        sup, c, h_len = _support(lvl, node, nv)
+        r0, r1, r2 = c[0] - o0t[0, e], c[1] - o0t[1, e], c[2] - o0t[2, e]
+        d = r0 * nv[0] + r1 * nv[1] + r2 * nv[2]
+        reach = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) + h_len
+        keep = d + sup >= thr[e] - 1e-12 * reach
+        e, node = e[keep], node[keep]
+        over = np.bincount(e, minlength=n_e) > cap
+        if over.any():
+            many |= over
+            drop = over[e]
+            e, node = e[~drop], node[~drop]
+        if lv + 1 < len(levels):
+            e, node = np.repeat(e, 2), np.stack([2 * node, 2 * node + 1], axis=1).ravel()
+    slots = node[:, None] * LEAF + np.arange(LEAF)
+    real = slots < len(order)
+    k = order[np.minimum(slots, len(order) - 1)][real]
+    return np.repeat(e, LEAF)[real.ravel()], k, many

@@ -117,3 +117,22 @@ def test_ball_pairs_finds_every_meeting_pair_once():
             assert (ga[i] == gb[j]).all()
             near = dist[i, j] <= (ra[i] + rb[j]) * (1 + 2e-9)
             assert (near | (ra[i] >= big) | (rb[j] >= big)).all()
+
+
+@pytest.mark.parametrize("name", ["cornell", "split_box", "box_room", "sphere_in", "sphere_out", "sphere+box+quad"])
+def test_convexity_search_equals_loop(monkeypatch, rng, name):
+    """:func:`.solids._outward`'s tree search gives the loop's solids (every field equal)."""
+    from hemisphere_local_pass.core import solids
+
+    v, p = _scenes(rng)[name]
+    sc = Scene.from_polygons(v, p, np.full((len(p), 3), 0.5))
+    occ = culling.build_occluders(sc)
+    args = (occ.vertices, occ.counts, occ.normals, occ.tilt, occ.noise)
+    found = []
+    for start in (10**9, 0):
+        monkeypatch.setattr(solids, "OUTWARD_SEARCH_FROM", start)
+        found.append(solids.build_solids(*args))
+    a, b = found
+    assert a.n == b.n
+    for f in a.__dataclass_fields__:
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
