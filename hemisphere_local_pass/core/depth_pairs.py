@@ -310,6 +310,8 @@ LEAF = 4
 #: a (face, side) whose tree search keeps more nodes than this at some level is *open*: its list is not
 #: kept (the faces beyond that side of its plane are many; the receivers pair them by their cones)
 OPEN_NODES = 160
+#: ... or whose nodes wholly beyond that side hold more faces than this
+OPEN_FACES = 64
 
 
 @dataclass
@@ -416,7 +418,7 @@ def beyond_lists(faces: Bodies) -> BeyondLists:
         wholly = keep & (d - _support(lvl, node, -nrm)[0] > t)
         size = LEAF << (len(levels) - 1 - lv)
         key = 2 * o + side
-        many = np.bincount(key[wholly], minlength=2 * n_o) * size > LEAF * OPEN_NODES
+        many = np.bincount(key[wholly], minlength=2 * n_o) * size > OPEN_FACES
         o, side, node = o[keep], side[keep], node[keep]
         key = key[keep]
         many |= np.bincount(key, minlength=2 * n_o) > OPEN_NODES
