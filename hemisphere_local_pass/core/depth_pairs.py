@@ -27,7 +27,8 @@ import numpy as np
 
 from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["Bodies", "DepthPairs", "ball_pairs", "pair_flags", "solid_columns"]
+__all__ = ["Bodies", "BeyondLists", "DepthPairs", "ball_pairs", "beyond_lists", "face_tree", "pair_flags",
+           "solid_columns", "tree_above"]
 
 #: relative rounding of the plane distances (as :data:`.culling._ROUNDING`)
 _ROUNDING = 64 * np.finfo(np.float64).eps
@@ -326,6 +327,11 @@ class BeyondLists:
     open: np.ndarray
 
 
+def face_tree(faces: Bodies):
+    """The tree of :func:`tree_above` (built once for several searches)."""
+    return _tree(faces)
+
+
 def _tree(faces: Bodies):
     """A complete binary tree over the faces sorted by Morton code of their centres (leaves of
     :data:`LEAF`): per level (root first) one ``(14, N)`` array per node: the box holding every
@@ -399,9 +405,31 @@ def beyond_lists(faces: Bodies) -> BeyondLists:
     if n_o == 0:
         return BeyondLists(np.zeros((2, 1), dtype=np.int64), np.zeros(0, dtype=np.int64), is_open)
     levels, order = _tree(faces)
-    o = np.repeat(np.arange(n_o), 2)
-    side = np.tile(np.array([0, 1]), n_o)
-    node = np.zeros(2 * n_o, dtype=np.int64)
+    found = []
+    for a in range(0, n_o, BLOCK):                     # blocks of faces: temporaries ~BLOCK x 2 x 320 nodes
+        o, side, k = _beyond_block(faces, levels, order, np.arange(a, min(n_o, a + BLOCK)), is_open)
+        found.append((o, side, k))
+    o, side, k = (np.concatenate(x) for x in zip(*found))
+    srt = np.lexsort((k, o, side))
+    o, side, k = o[srt], side[srt], k[srt]
+    ptr = np.zeros((2, n_o + 1), dtype=np.int64)
+    np.add.at(ptr, (side, o + 1), 1)
+    ptr = np.cumsum(ptr.ravel()).reshape(2, n_o + 1)
+    ptr[1] -= ptr[1, 0] - ptr[0, -1]                     # side 1 starts where side 0 ends
+    return BeyondLists(ptr, k, is_open)
+
+
+#: faces per block of :func:`beyond_lists`' and :func:`tree_above`'s searches
+BLOCK = 2048
+
+
+def _beyond_block(faces: Bodies, levels, order, block, is_open):
+    """:func:`beyond_lists` for the faces ``block``: ``(o, side, k)`` the listed pairs (``is_open`` set
+    in place)."""
+    n_o = len(faces.counts)
+    o = np.repeat(block, 2)
+    side = np.tile(np.array([0, 1]), len(block))
+    node = np.zeros(2 * len(block), dtype=np.int64)
     tilt_c = 4 * PLANE_EPS + faces.tilt
     o0 = faces.vertices[:, 0]
     o0t, nt = np.ascontiguousarray(o0.T), np.ascontiguousarray(faces.normals.T)
@@ -440,25 +468,30 @@ def beyond_lists(faces: Bodies) -> BeyondLists:
     bp, bn = pair_flags(faces, k, faces, o)[:2]
     hit = np.where(side == 0, bp, bn)
     o, side, k = o[hit], side[hit], k[hit]
-    srt = np.lexsort((k, o, side))
-    o, side, k = o[srt], side[srt], k[srt]
-    ptr = np.zeros((2, n_o + 1), dtype=np.int64)
-    np.add.at(ptr, (side, o + 1), 1)
-    ptr = np.cumsum(ptr.ravel()).reshape(2, n_o + 1)
-    ptr[1] -= ptr[1, 0] - ptr[0, -1]                     # side 1 starts where side 0 ends
-    return BeyondLists(ptr, k, is_open)
+    return o, side, k
 
 
-def tree_above(faces: Bodies, o0: np.ndarray, nrm: np.ndarray, thr: np.ndarray, cap: int = 256):
+def tree_above(faces: Bodies, o0: np.ndarray, nrm: np.ndarray, thr: np.ndarray, cap: int = 256, tree=None):
     """For planes ``o0 + x, nrm · x = 0`` (E of them, unit ``nrm (E, 3)``): the faces that may have a vertex x
     with ``nrm · (x - o0) > thr`` (a search of :func:`_tree`: a node is kept while its bound reaches
     ``thr``, to rounding). Returns ``(e, k)`` candidate (plane, face) pairs and ``(E,)`` bool: planes
-    whose search kept more than ``cap`` nodes at some level (no candidates listed for them)."""
+    whose search kept more than ``cap`` nodes at some level (no candidates listed for them). ``tree``:
+    ``_tree(faces)`` if already built."""
     n_e = len(thr)
     many = np.zeros(n_e, dtype=bool)
-    levels, order = _tree(faces)
-    e = np.arange(n_e)
-    node = np.zeros(n_e, dtype=np.int64)
+    levels, order = _tree(faces) if tree is None else tree
+    out = [_above_block(levels, order, o0, nrm, thr, cap, np.arange(a, min(n_e, a + BLOCK)), many)
+           for a in range(0, n_e, BLOCK)]
+    if not out:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), many
+    e, k = (np.concatenate(x) for x in zip(*out))
+    return e, k, many
+
+
+def _above_block(levels, order, o0, nrm, thr, cap, e, many):
+    """:func:`tree_above` for the planes ``e`` (``many`` set in place)."""
+    n_e = len(thr)
+    node = np.zeros(len(e), dtype=np.int64)
     o0t, nt = np.ascontiguousarray(o0.T), np.ascontiguousarray(nrm.T)
     for lv, lvl in enumerate(levels):
         nv = nt[:, e]
@@ -478,4 +511,4 @@ def tree_above(faces: Bodies, o0: np.ndarray, nrm: np.ndarray, thr: np.ndarray, 
     slots = node[:, None] * LEAF + np.arange(LEAF)
     real = slots < len(order)
     k = order[np.minimum(slots, len(order) - 1)][real]
-    return np.repeat(e, LEAF)[real.ravel()], k, many
+    return np.repeat(e, LEAF)[real.ravel()], k

@@ -183,7 +183,7 @@ def _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise):
     search cannot settle cheaply, goes through the loop's own arithmetic (same answer, bit for bit)."""
     if len(grp) < OUTWARD_SEARCH_FROM:
         return _outward_loop(grp, vertices, normals, tilt, pts, size, g_noise)
-    from .depth_pairs import Bodies, tree_above
+    from .depth_pairs import Bodies, face_tree, tree_above
 
     g = np.asarray(grp)
     v0, nrm = vertices[g, 0], normals[g]
@@ -199,14 +199,17 @@ def _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise):
     exact = behind == ahead                                  # neither, or both (then not convex anyway)
     cand = np.flatnonzero(~exact)
     faces = Bodies(vertices[g], counts[g], normals[g], tilt[g])
-    pe, pk, many = tree_above(faces, v0[cand], nrm[cand] * sign[cand, None], tol[cand] - e)
-    exact[cand[many]] = True
-    # the candidates' vertices: a vertex in front beyond tol fails the face; within e of tol: exactly
-    kv = vertices[g[pk]]                                                    # (p, K, 3), padding repeats
-    f = cand[pe]
-    d = np.einsum("pkc,pc->pk", kv - v0[f][:, None], nrm[f]) * sign[f, None]
+    tree = face_tree(faces)
     worst = np.full(len(g), -np.inf)
-    np.maximum.at(worst, f, d.max(axis=1, initial=-np.inf))
+    for a in range(0, len(cand), 1024):          # blocks of faces: ~1024 x a few hundred candidates
+        cb = cand[a:a + 1024]
+        pe, pk, many = tree_above(faces, v0[cb], nrm[cb] * sign[cb, None], tol[cb] - e, tree=tree)
+        exact[cb[many]] = True
+        # the candidates' vertices: a vertex in front beyond tol fails the face; within e of tol: exactly
+        kv = vertices[g[pk]]                                                # (p, K, 3), padding repeats
+        f = cb[pe]
+        d = np.einsum("pkc,pc->pk", kv - v0[f][:, None], nrm[f]) * sign[f, None]
+        np.maximum.at(worst, f, d.max(axis=1, initial=-np.inf))
     if (worst > tol + e).any():
         return None
     exact |= worst > tol - e
