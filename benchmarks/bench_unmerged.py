@@ -1,37 +1,19 @@
 """A scene whose polygons do not merge (issue 10 part 2): a UV sphere facing inward, receivers inside
 facing the centre (radiance 0.5 everywhere: H = π/2 exactly).
 
-Every face of a sphere is in its own plane, so every face is a merged face (occluder) of its own. Inside a
-convex sphere nothing hides anything, so the exact answer should be cheap; the level-1 culling
-(:func:`.visibility.coverage`) used to build dense (face instances × volumes) tables per chunk, i.e.
-receivers × n_o² (2,048 faces: 5.6 GB peak for 64 points; 8,192 faces: out of memory on 24 GB). It now
-takes its pairs from the scene's sparse lists (:class:`.culling.VolumePairs`).
+Every face of a sphere is in its own plane, so every face is a merged face (occluder) of its own, and
+the depth relations between them are dense (every face is beyond every other face's plane). *old*:
+the (polygon × merged face) tables and the VolumePairs lists (``culling.PER_PAIR_DEPTH_FROM = None``,
+O(n_o²) time and memory); *new*: the relations per pair (:mod:`.depth_pairs`, the default from 4,096
+merged faces on; forced here at every size). Each (face count, old/new) runs in a fresh subprocess
+(peak RSS is per process): the preparation, then the irradiance at ``--points`` receivers; max |ΔH|
+between old and new (0: bit-identical).
 
-Each face count runs in a fresh subprocess (peak RSS is per process): the preparation, then the
-irradiance with the sparse pairs, then (up to ``--dense-max`` faces) with the dense ones as before
-(``visibility.DENSE_COVERAGE``), interleaved in one process for the time ratio; the peak RSS after
-each step (monotone: the sparse run comes first) and max |ΔH| between the two.
+    OMP_NUM_THREADS=1 python benchmarks/bench_unmerged.py [--faces 512,2048,8192,32768] [--points 32]
+        [--old-max 8192] [--outside]   (receivers at 3 r facing an outward sphere: front faces hide back faces)
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_unmerged.py [--faces 512,2048,8192] [--points 32] [--dense-max 2048]
-        [--outside]   (receivers at 3 r facing an outward sphere: front faces hide back faces)
-
-Measured 2026-12-02 00:22-00:33 UTC, load average 14 on 2 cores (absolute times ~5x a quiet machine's;
-the old/new ratio is side by side in one process), 32 points:
-
-     faces  prep s  prep RSS  ms/pt new  RSS new  ms/pt old  RSS old  old/new  max|dH|  |H-pi/2|
-       512     0.9       71M       10.5      71M       52.6     224M     5.0x        0   1.6e-15
-      2048    21.6      146M       31.9     146M     1998.3    2850M    62.7x        0   3.3e-15
-      8192   375.9      792M      350.1     792M   (out of memory on 24 GB)                5.1e-15
-
-``--outside`` (00:46-00:51 UTC, load 10-12; 8 and 4 points): front faces hide back faces, so level 1
-has ~n_o²/4 real pairs per receiver (tested a block at a time now) and the clipping is real work:
-
-       512     1.6       71M      186.1      71M      323.9     101M     1.7x        0   1.5e-03
-      2048    21.3      146M     1646.4     146M     3342.9     492M     2.0x        0   4.0e-04
-
-The preparation is still O(n_o²) in time and memory for such a scene (the pair tables are dense
-relations there: every face is beyond every other face's plane), now as bits and uint16 lists; the
-per-point cost is O(n_o) per receiver (shadow volumes, clear tiles, the hierarchy's roots).
+Figures and what is left: docs/bench_unmerged.md (8,192 faces: 35.9 s / 792 MB -> 2.7 s / 122 MB to
+prepare; 32,768: 23 s / 187 MB).
 """
 
 from __future__ import annotations
