@@ -48,7 +48,9 @@ def prepare_scene(scene: Scene, *, occluders: Occluders | None = None, progress=
     Merged occluders with their depth tables, tiles and convex solids (:func:`.culling.build_occluders`),
     the tiles' welded edges (:func:`.clear_tiles.tile_edges`) and the tile hierarchy
     (:func:`.hierarchy.build_hierarchy`) — O(n log n) time and O(n) memory in the number of polygons n
-    when the scene's polygons merge into few faces (the depth tables are polygons × merged faces).
+    when the scene's polygons merge into few faces (the depth tables are polygons × merged faces); from
+    :data:`.culling.PER_PAIR_DEPTH_FROM` merged faces on there are no tables (:mod:`.depth_pairs`:
+    memory O(n) besides polygons × convex solids, time ~O(n^1.5) for a curved mesh).
 
     Args:
         occluders: prebuilt occluders to use instead of the scene's own.

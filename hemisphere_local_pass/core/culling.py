@@ -20,10 +20,12 @@ clips) only runs for pairs that pass.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
+from .depth_pairs import Bodies, DepthPairs, ball_pairs, beyond_lists, pair_flags, solid_columns
 from .rowops import pack_bits, unique_rows
 from .scene import Scene, plane_uncertainty
 from .solids import Solids, build_solids, no_solids
@@ -110,6 +112,8 @@ class Occluders:
             occluder (or solid) o has a vertex strictly on the positive / negative side of occluder k's
             plane (``[k, o]``); vol_centers (n_o + n_s, 3), vol_radii: bounding spheres of all volumes.
         vol_pairs: the pairs of occ_beyond_* and occ_reach_* as sparse lists (:class:`VolumePairs`).
+        depth: for scenes of many merged faces (:func:`per_pair_depth`), the depth relations per pair
+            (:class:`.depth_pairs.DepthPairs`) instead of all the tables above (then None) and vol_pairs.
     """
 
     vertices: np.ndarray
@@ -142,6 +146,7 @@ class Occluders:
     vol_centers: np.ndarray | None = None
     vol_radii: np.ndarray | None = None
     vol_pairs: VolumePairs | None = None
+    depth: DepthPairs | None = None
 
     @property
     def n(self) -> int:
@@ -544,12 +549,15 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
 
     step("merged faces")
     occ_tilt, occ_noise = plane_uncertainty(verts)
-    # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
     n_o = n_loops
-    o_tabs = _beyond(verts, counts, verts, normals, occ_tilt)
-    o_pos, o_neg, ob_pos, ob_neg = o_tabs
     # convex solids: their volumes are extra occluder columns of the tables (see :mod:`.solids`)
     sol = build_solids(verts, counts, normals, occ_tilt, occ_noise) if solids else no_solids()
+    if per_pair_depth(n_o):
+        return _occluders_per_pair(scene, step, verts, counts, normals, centers, radii, members, poly_core,
+                                   occ_tilt, occ_noise, sol)
+    # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
+    o_tabs = _beyond(verts, counts, verts, normals, occ_tilt)
+    o_pos, o_neg, ob_pos, ob_neg = o_tabs
     fs = sol.face_solid
 
     def per_solid(table):  # (r, n_o) -> (r, n_s): any face of the solid
@@ -650,6 +658,60 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
                      front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
                      sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
                      np.concatenate([radii, sol.radii]), pairs)
+
+
+#: the depth relations per pair (:mod:`.depth_pairs`) instead of tables from this many merged faces on
+#: (None: never; tests set 0 to compare both on small scenes; the environment variable
+#: HLP_PER_PAIR_DEPTH_FROM sets it for a whole run, e.g. 0 to run a test suite per pair)
+PER_PAIR_DEPTH_FROM: int | None = int(os.environ.get("HLP_PER_PAIR_DEPTH_FROM", "4096"))
+
+
+def per_pair_depth(n_o: int) -> bool:
+    """Whether a scene of ``n_o`` merged faces gets :class:`.depth_pairs.DepthPairs` instead of tables."""
+    return PER_PAIR_DEPTH_FROM is not None and n_o >= PER_PAIR_DEPTH_FROM
+
+
+def _occluders_per_pair(scene, step, verts, counts, normals, centers, radii, members, poly_core, occ_tilt,
+                        occ_noise, sol) -> Occluders:
+    """:func:`build_occluders` without the (polygon × merged face) tables: the depth relations are
+    computed per pair where the receivers need them (:mod:`.depth_pairs`); O(n log n) time and O(n)
+    memory besides the solids' columns (polygons × solids)."""
+    n, n_o = scene.n_polygons, len(counts)
+    polys = Bodies(scene.poly_vertices, scene.poly_counts, scene.poly_normals, scene.poly_tilt)
+    faces = Bodies(verts, counts, normals, occ_tilt)
+    args = (sol.face_ptr, sol.face_occ, sol.centers, sol.radii)
+    depth = DepthPairs(polys, faces, *(pack_bits(t) for t in solid_columns(polys, faces, *args)),
+                       *(pack_bits(t) for t in solid_columns(faces, faces, *args)), beyond_lists(faces))
+    step("depth tables")
+    mapped = members[scene.dup_rep] if n else members
+    tiles = _tiles(scene, mapped, n_o)
+    step("tiles")
+    # coplanar overlapping surfaces: polygon i in the plane of a merged face o it is not part of (only
+    # pairs whose bounding spheres meet can overlap; _separated below drops the others as the tables do)
+    pad = 1e-6
+    r_p = scene.poly_radii * (1 + pad) + 1e3 * COORD_EPS * np.abs(scene.poly_centers).max(axis=1, initial=0.0)
+    r_o = radii * (1 + pad) + 1e3 * COORD_EPS * np.abs(centers).max(axis=1, initial=0.0)
+    big = 1.0001 * max(float(r_p.max(initial=0.0)), float(r_o.max(initial=0.0)), 1e-300)
+    ci, co = ball_pairs(np.zeros(n, dtype=np.int64), scene.poly_centers, r_p, np.zeros(n_o, dtype=np.int64),
+                        centers, r_o, big)
+    ok = pair_flags(polys, ci, faces, co)[4] & (co != mapped[ci])
+    core_i = poly_core[scene.dup_rep[ci]] if n else ci
+    ok &= ~((core_i >= 0) & (co == core_i))                # a core never hides its own tiling's cells
+    ci, co = ci[ok], co[ok]
+    order = np.lexsort((co, ci))                           # the tables' row-major order
+    ci, co = ci[order], co[order]
+    keep = ~_separated(scene.poly_vertices[ci], scene.poly_counts[ci], scene.poly_normals[ci],
+                       verts[co], counts[co], normals[co])
+    ci, co = ci[keep], co[keep]
+    cop_ptr = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(cop_ptr, ci + 1, 1)
+    first_source = np.full(n_o, np.iinfo(np.int64).max)
+    if n:
+        np.minimum.at(first_source, mapped, scene.poly_source)
+    step("solids")
+    return Occluders(verts, counts, normals, centers, radii, mapped, None, None, None, None, None, None, *tiles,
+                     np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise, sol, None, None,
+                     np.concatenate([centers, sol.centers]), np.concatenate([radii, sol.radii]), None, depth)
 
 
 def _rows_reusing(reuse, members, tables, compute):

@@ -155,13 +155,9 @@ def build_solids(vertices: np.ndarray, counts: np.ndarray, normals: np.ndarray, 
         np.concatenate([e[4] for e in edges]), np.array(centers), np.array(radii))
 
 
-def _convex_solid(grp, vertices, counts, normals, tilt, noise, owners):
-    """``(faces, outward normals, hole or None, edges, centre, radius)`` if the group is a convex solid."""
-    pts = np.concatenate([vertices[o, : counts[o]] for o in grp])
-    center = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    radius = float(np.linalg.norm(pts - center, axis=1).max())
-    size = 2.0 * radius
-    g_noise = COORD_EPS * float(np.abs(pts).max())
+def _outward_loop(grp, vertices, normals, tilt, pts, size, g_noise):
+    """The outward normal of every face of the group (``(F, 3)``), or None when the group lies on both
+    sides of some face's plane (or is flat): not convex. O(F × points)."""
     outs = []
     for o in grp:
         d = (pts - vertices[o, 0]) @ normals[o]
@@ -171,7 +167,71 @@ def _convex_solid(grp, vertices, counts, normals, tilt, noise, owners):
         elif d.min() >= -tol and d.max() > _MARGIN * tol:
             outs.append(-normals[o])
         else:
-            return None  # the group lies on both sides of this face's plane (or is flat): not convex
+            return None
+    return outs
+
+
+#: groups of this many faces on are tested by :func:`_outward`'s tree search instead of the loop
+OUTWARD_SEARCH_FROM = 64
+
+
+def _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise):
+    """:func:`_outward_loop`'s answer, for large groups without its O(F × points): a face passes when some
+    vertex is clearly behind its plane (of 14 extreme points of the group) and a search of a tree over
+    the group's faces (:func:`.depth_pairs.tree_above`) finds no vertex in front of it beyond the
+    tolerance; every decision within a rounding bound ``e`` of its threshold, and every face the
+    search cannot settle cheaply, goes through the loop's own arithmetic (same answer, bit for bit)."""
+    if len(grp) < OUTWARD_SEARCH_FROM:
+        return _outward_loop(grp, vertices, normals, tilt, pts, size, g_noise)
+    from .depth_pairs import Bodies, face_tree, tree_above
+
+    g = np.asarray(grp)
+    v0, nrm = vertices[g, 0], normals[g]
+    tol = (4 * PLANE_EPS + tilt[g]) * size + 2 * g_noise
+    e = 1e-13 * size                               # >> the rounding of any d here (|d| <= 2 size)
+    dirs = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1], [1, 1, -1], [1, -1, 1], [-1, 1, 1]], float)
+    proj = pts @ dirs.T
+    samples = pts[np.unique(np.concatenate([proj.argmax(axis=0), proj.argmin(axis=0)]))]
+    d_s = np.einsum("fsc,fc->fs", samples[None] - v0[:, None], nrm)
+    behind = d_s.min(axis=1) < -_MARGIN * tol - e            # branch 1 possible (normal outward)
+    ahead = d_s.max(axis=1) > _MARGIN * tol + e              # branch 2 possible (normal inward)
+    sign = np.where(behind, 1.0, -1.0)
+    exact = behind == ahead                                  # neither, or both (then not convex anyway)
+    cand = np.flatnonzero(~exact)
+    faces = Bodies(vertices[g], counts[g], normals[g], tilt[g])
+    tree = face_tree(faces)
+    worst = np.full(len(g), -np.inf)
+    for a in range(0, len(cand), 1024):          # blocks of faces: ~1024 x a few hundred candidates
+        cb = cand[a:a + 1024]
+        pe, pk, many = tree_above(faces, v0[cb], nrm[cb] * sign[cb, None], tol[cb] - e, tree=tree)
+        exact[cb[many]] = True
+        # the candidates' vertices: a vertex in front beyond tol fails the face; within e of tol: exactly
+        kv = vertices[g[pk]]                                                # (p, K, 3), padding repeats
+        f = cb[pe]
+        d = np.einsum("pkc,pc->pk", kv - v0[f][:, None], nrm[f]) * sign[f, None]
+        np.maximum.at(worst, f, d.max(axis=1, initial=-np.inf))
+    if (worst > tol + e).any():
+        return None
+    exact |= worst > tol - e
+    outs = np.where(sign[:, None] > 0, nrm, -nrm)
+    for i in np.flatnonzero(exact):
+        one = _outward_loop([g[i]], vertices, normals, tilt, pts, size, g_noise)
+        if one is None:
+            return None
+        outs[i] = one[0]
+    return list(outs)
+
+
+def _convex_solid(grp, vertices, counts, normals, tilt, noise, owners):
+    """``(faces, outward normals, hole or None, edges, centre, radius)`` if the group is a convex solid."""
+    pts = np.concatenate([vertices[o, : counts[o]] for o in grp])
+    center = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    radius = float(np.linalg.norm(pts - center, axis=1).max())
+    size = 2.0 * radius
+    g_noise = COORD_EPS * float(np.abs(pts).max())
+    outs = _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise)
+    if outs is None:
+        return None
     local = {o: i for i, o in enumerate(grp)}
     ea, eb, ef, eg = [], [], [], []
     boundary = []

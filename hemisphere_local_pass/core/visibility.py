@@ -27,6 +27,7 @@ import numpy as np
 from .clipping import split_convex
 from .csr import expand
 from .culling import Occluders
+from .depth_pairs import ball_pairs
 from .form_factor import edge_noise
 from .projection import Candidates, flat_rows, onto_planes_through_p, receiver_side, snap_to_receiver
 from .rowops import any_rows, at2, bit_at, max_abs_rows, nonzero_rows, sides, sum_rows, take_rows, unpack_rows
@@ -500,7 +501,9 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
         return Coverage(np.zeros(0, dtype=bool), np.zeros(1, dtype=np.int64), e, ax_o, half_o)
 
     # clusters (face instances) against shadow volumes
-    if DENSE_COVERAGE or occ.vol_pairs is None:
+    if occ.depth is not None:
+        blocks = _cluster_pairs_by_cones(sv, table, occ, ax_o, half_o)
+    elif DENSE_COVERAGE or occ.vol_pairs is None:
         blocks = [_cluster_pairs_dense(sv, table, occ)]
     else:
         blocks = _cluster_pair_blocks(sv, table, occ)
@@ -560,6 +563,61 @@ def _cluster_pairs(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
     k_idx, kq = (np.concatenate(a) for a in zip(*_cluster_pair_blocks(sv, table, occ)))
     order = np.lexsort((sv.occluder[kq], k_idx))
     return k_idx[order], kq[order]
+
+
+def _cluster_pairs_by_cones(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, ax_o, half_o):
+    """:func:`_cluster_pair_blocks` for :attr:`.culling.Occluders.depth` (no receiver-independent pair
+    lists over n_o² entries): a face volume q whose far side has few faces beyond it takes them from
+    :class:`.depth_pairs.BeyondLists`; the others (and the solids' volumes) are paired with the face
+    instances whose bounding cones from the receiver may meet theirs (:func:`.depth_pairs.ball_pairs`
+    on the cones' axes: the chord is at most the angle; receivers in blocks of about :data:`PAIR_BLOCK`
+    / 2 instances). Then the depth relations of just those pairs (:meth:`.depth_pairs.DepthPairs.can_hide`).
+    The pairs that :func:`_test_pairs` keeps are the same as from the tables (it tests the cones first)."""
+    lists = occ.depth.lists
+    n_k, n_q, n_o = sv.n_face, sv.n_base, occ.n
+    qs = np.flatnonzero(sv.occludes[:n_q])
+    o_q = sv.occluder[qs]
+    s_q = (sv.side[qs] <= 0).astype(np.int64)               # 0: the far side is the + side
+    listed = o_q < n_o
+    listed[listed] = ~lists.open[s_q[listed], o_q[listed]]
+    yield np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    ql = qs[listed]
+    if len(ql):
+        o, s = o_q[listed], s_q[listed]
+        n = lists.ptr[s, o + 1] - lists.ptr[s, o]
+        q = np.repeat(ql, n)
+        pos = np.arange(len(q)) - np.repeat(np.cumsum(n) - n, n) + np.repeat(lists.ptr[s, o], n)
+        k_occ = lists.faces[pos]
+        k = table[sv.point[q], k_occ]
+        ok = k >= 0
+        k, q = k[ok], q[ok]
+        ok = occ.depth.can_hide(False, sv.occluder[k], sv.occluder[q], sv.side[q] > 0, sv.side[k] < 0)
+        yield k[ok], q[ok]
+    qd = qs[~listed]
+    if not len(qd):
+        return
+    # cos(angle) >= cos(h_k + h_q) - 1e-12 in _test_pairs: the angle may exceed h_k + h_q by 1.5e-6
+    slack = 1e-6
+    pts_q = sv.point[qd]
+    wanted = np.zeros(int(sv.point.max(initial=0)) + 1, dtype=bool)
+    wanted[pts_q] = True
+    ks = np.flatnonzero(wanted[sv.point[:n_k]])
+    pts_k = sv.point[ks]
+    ends = np.cumsum(np.bincount(pts_k, minlength=len(wanted)))
+    cuts = np.unique(np.searchsorted(ends, np.arange(PAIR_BLOCK // 2, int(ends[-1]), PAIR_BLOCK // 2)))
+    bounds = np.concatenate([[0], cuts + 1, [len(wanted)]])
+    for a, e in zip(bounds[:-1], bounds[1:]):
+        if a >= e:
+            continue
+        kb = ks[(pts_k >= a) & (pts_k < e)]
+        qb = qd[(pts_q >= a) & (pts_q < e)]
+        i, j = ball_pairs(sv.point[kb], ax_o[kb], half_o[kb] + slack, sv.point[qb], ax_o[qb], half_o[qb] + slack,
+                          0.25)
+        k, q = kb[i], qb[j]
+        ok = sv.occluder[k] != sv.occluder[q]                                    # a face never hides itself
+        k, q = k[ok], q[ok]
+        ok = occ.depth.can_hide(False, sv.occluder[k], sv.occluder[q], sv.side[q] > 0, sv.side[k] < 0)
+        yield k[ok], q[ok]
 
 
 def _cluster_pair_blocks(sv: ShadowVolumes, table: np.ndarray, occ: Occluders):
@@ -655,9 +713,12 @@ def occluder_pairs(cand: Candidates, sv: ShadowVolumes, table: np.ndarray, cov: 
         ci = cand.poly[body]
         sig = sv.side[q] > 0
         oq = sv.occluder[q]
-        beyond = np.where(sig, bit_at(occ.beyond_pos, ci, oq), bit_at(occ.beyond_neg, ci, oq))
         p_pos = cand.side[body] < 0                                              # P on the + side of the body
-        beyond &= np.where(p_pos, bit_at(occ.front_pos, ci, oq), bit_at(occ.front_neg, ci, oq))
+        if occ.depth is not None:                                                # per pair (no tables)
+            beyond = occ.depth.can_hide(True, ci, oq, sig, p_pos)
+        else:
+            beyond = np.where(sig, bit_at(occ.beyond_pos, ci, oq), bit_at(occ.beyond_neg, ci, oq))
+            beyond &= np.where(p_pos, bit_at(occ.front_pos, ci, oq), bit_at(occ.front_neg, ci, oq))
         body, q = body[beyond], q[beyond]
     if len(occ.coplanar_occ):
         # coplanar overlapping surfaces: the one facing P wins, then the lower input index
