@@ -55,11 +55,60 @@ from hemisphere_local_pass.scenes import camera_rays, cornell_box
 DOCS = ROOT / "docs"
 
 
-def box_arrays(subdivisions: int):
+#: radiance of the visible boxes: "constant" (per part) or "smooth" (see :func:`smooth_radiance`)
+RADIANCE = "constant"
+
+
+def box_arrays(subdivisions: int, radiance: str | None = None):
     """``(vertices (V, 3), quads (n, 4), radiance (n, 3), box)`` of a closed Cornell box."""
     box = cornell_box(subdivisions, block_detail=1.05 if subdivisions > 5 else 1.0)
+    verts, quads = np.asarray(box.vertices), np.array(box.polygons, dtype=np.int64)
+    if (radiance or RADIANCE) == "smooth":
+        return verts, quads, smooth_radiance(verts, quads, box), box
     rad = box.emission + 0.1 * box.reflectivity * (box.emission.sum(axis=1) == 0)[:, None]
-    return np.asarray(box.vertices), np.array(box.polygons, dtype=np.int64), rad, box
+    return verts, quads, rad, box
+
+
+def smooth_radiance(verts, quads, box) -> np.ndarray:
+    """A radiosity-like radiance, smooth over every wall and different on every polygon, with hard shadows:
+    ``L_i = E_i + ρ_i/π (E_direct(c_i) + E_ambient)`` at the polygon centroid ``c_i``, ``E_direct`` from
+    the light as one small source at its centre (``L_e A cosθ_i cosθ_l / (r² + a²)``, ``a²`` its area /
+    4, zero where a shadow ray from ``c_i`` to the light's centre hits something) and ``E_ambient``
+    0.03 (1 + 0.8 u_z + 0.8 (u_x² + u_y²)) times the light's ``π L_e``, ``u = c_i / size − ½`` (the
+    reflected light a first pass adds; no wall has constant radiance). What a
+    user's first pass gives varies like this (smoothly, shadows aside); the real solver
+    (:mod:`hemisphere_local_pass.first_pass`) takes ~15 min at 10^5 polygons on this machine."""
+    from hemisphere_local_pass.core import Scene
+
+    n = len(quads)
+    scene = Scene.from_arrays(verts, quads.ravel(), np.arange(n, dtype=np.int64) * 4, np.full(n, 4, dtype=np.int64),
+                              np.zeros((n, 3)))
+    c = verts[quads].mean(axis=1)
+    nrm = scene.poly_normals
+    light = np.flatnonzero(box.emission.sum(axis=1) > 0)
+    area = np.linalg.norm(np.cross(verts[quads[:, 2]] - verts[quads[:, 0]], verts[quads[:, 3]] - verts[quads[:, 1]]),
+                          axis=1) * 0.5
+    a_l = area[light].sum()
+    x_l = (c[light] * area[light, None]).sum(axis=0) / a_l
+    n_l = nrm[light[0]]
+    le = box.emission[light[0]]
+    d = x_l - c
+    r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-30)
+    cos_i = np.maximum(np.einsum("ij,ij->i", nrm, d), 0.0) / np.sqrt(r2)
+    cos_l = np.maximum(-np.einsum("ij,ij->i", n_l[None, :] * np.ones((n, 1)), d), 0.0) / np.sqrt(r2)
+    e_dir = le[None, :] * (a_l * cos_i * cos_l / (r2 + 0.25 * a_l))[:, None]
+    lit = (cos_i > 0) & (cos_l > 0)
+    idx = np.flatnonzero(lit)
+    o = c[idx] + 1e-7 * nrm[idx]
+    hits = cast_rays(scene, o, x_l + 1e-6 * n_l - o, t_max=1.0 - 1e-7, bvh=build_bvh(scene))
+    vis = np.zeros(n, dtype=bool)
+    vis[idx] = ~hits.hit
+    # reflected light: smaller than the direct light on the floor, growing towards the ceiling
+    u = c / box.size - 0.5
+    e_amb = 0.03 * np.pi * le[None, :] * (1.0 + 0.8 * u[:, 2:3] + 0.8 * (u[:, :2] ** 2).sum(axis=1, keepdims=True))
+    rad = box.emission + box.reflectivity / np.pi * (np.where(vis[:, None], e_dir, 0.0) + e_amb)
+    rad[light] = box.emission[light]
+    return rad
 
 
 def grid(nx: int, origin, du, dv):
@@ -167,8 +216,12 @@ def main(argv=None):
     ap.add_argument("--worker-points", type=int, default=1024, help="receivers of the all-workers timing")
     ap.add_argument("--ratio-pair", default="35,160",
                     help="two visible subdivisions timed interleaved, exact and with the tolerance ('' for none)")
+    ap.add_argument("--radiance", choices=("constant", "smooth"), default="constant",
+                    help="radiance of the visible boxes: constant per part, or smooth_radiance (varies per polygon)")
     ap.add_argument("--out", default=str(DOCS / "bench_scaling"), help="output prefix ('' for none)")
     args = ap.parse_args(argv)
+    global RADIANCE
+    RADIANCE = args.radiance
     core = importlib.import_module("hemisphere_local_pass.core")
     base = load_baseline(args.baseline) if args.baseline else None
 
@@ -261,6 +314,7 @@ def main(argv=None):
              f"--visible {args.visible} --hidden {args.hidden} --below {args.below} --under {args.under} "
              f"--repeat {args.repeat} --tolerance {args.tolerance:g} --worker-points {args.worker_points} "
              f"--ratio-pair {args.ratio_pair or chr(39) * 2}"
+             + (f" --radiance {args.radiance}" if args.radiance != "constant" else "")
              + (f" --out {args.out}" if args.out != str(DOCS / "bench_scaling") else "")
              + (f" --baseline {args.baseline} --baseline-max {args.baseline_max} --baseline-visible-max "
                 f"{args.baseline_visible_max}" if args.baseline else "") + "`\n",
