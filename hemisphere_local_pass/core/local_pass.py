@@ -347,8 +347,8 @@ def _irradiance_far_chunk(shared, p, n, u, tol) -> np.ndarray:
         side = np.concatenate([nodes[2], pairs.side])
         lit = np.ones(len(side), dtype=bool) if scene.double_sided else side < 0
         hier = scene_hierarchy(scene, occ)
-        h, bound, skipped, summed, linear = far_field_irradiance(scene_node_edges(scene, occ), hier, point[lit], node[lit],
-                                                         side[lit], p, n, tol)
+        h, bound, skipped, summed, linear = far_field_irradiance(scene_node_edges(scene, occ), hier, point[lit],
+                                                                 node[lit], side[lit], p, n, tol)
         out[:, :3] += h
         out[:, 3:6] += bound
         out[:, 6], out[:, 7] = skipped, summed

@@ -228,7 +228,8 @@ _FIELDS = {
     # a hard shadow edge across smooth light
     "shadow": lambda x, y: np.column_stack([np.where(x + 0.3 * y < 0.55, 0.1, 1.0 + x * y)] * 3),
     # a smooth field with a tiny chequerboard on it
-    "chequer": lambda x, y: np.column_stack([1.0 + 0.5 * x * x + 1e-3 * ((np.floor(x * 64) + np.floor(y * 64)) % 2)] * 3),
+    "chequer": lambda x, y: np.column_stack(
+        [1.0 + 0.5 * x * x + 1e-3 * ((np.floor(x * 64) + np.floor(y * 64)) % 2)] * 3),
 }
 
 
