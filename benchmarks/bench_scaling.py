@@ -216,6 +216,8 @@ def main(argv=None):
     ap.add_argument("--worker-points", type=int, default=1024, help="receivers of the all-workers timing")
     ap.add_argument("--ratio-pair", default="35,160",
                     help="two visible subdivisions timed interleaved, exact and with the tolerance ('' for none)")
+    ap.add_argument("--ratio-radiance", default="",
+                    help="radiances of the ratio pair, e.g. constant,smooth (default: --radiance)")
     ap.add_argument("--radiance", choices=("constant", "smooth"), default="constant",
                     help="radiance of the visible boxes: constant per part, or smooth_radiance (varies per polygon)")
     ap.add_argument("--out", default=str(DOCS / "bench_scaling"), help="output prefix ('' for none)")
@@ -292,7 +294,8 @@ def main(argv=None):
                                   "tol_all_ms": 1e3 * t_all, "err_over_tol": float((err / tol).max()),
                                   "bound_over_tol": float((st.error_bound / tol).max()),
                                   "edges_summed": float(st.edges_summed.mean()),
-                                  "clear_nodes": float(st.clear_nodes.mean())})
+                                  "clear_nodes": float(st.clear_nodes.mean()),
+                                  "linear": float(st.linear_proxies.mean())})
             mf = min(args.ff_points, len(p))
             t_ff = per_point(mod.form_factors, scene, p[:mf], nrm[:mf], repeat=args.repeat)[0] if n <= 200_000 \
                 else np.nan
@@ -315,6 +318,7 @@ def main(argv=None):
              f"--repeat {args.repeat} --tolerance {args.tolerance:g} --worker-points {args.worker_points} "
              f"--ratio-pair {args.ratio_pair or chr(39) * 2}"
              + (f" --radiance {args.radiance}" if args.radiance != "constant" else "")
+             + (f" --ratio-radiance {args.ratio_radiance}" if args.ratio_radiance else "")
              + (f" --out {args.out}" if args.out != str(DOCS / "bench_scaling") else "")
              + (f" --baseline {args.baseline} --baseline-max {args.baseline_max} --baseline-visible-max "
                 f"{args.baseline_visible_max}" if args.baseline else "") + "`\n",
@@ -343,13 +347,13 @@ def main(argv=None):
                   "largest measured |H_tol − H_exact| and the largest returned bound per receiver and channel, "
                   "over the tolerance. *extra prep*: the first tolerance call's proxy scene.\n",
                   "| series | polygons | exact ms/pt | tolerance ms/pt | speed-up | tolerance, all workers ms/pt | "
-                  "error / tol | bound / tol | edges summed /pt | clear nodes /pt | extra prep s |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "error / tol | bound / tol | edges summed /pt | clear nodes /pt | linear proxies /pt | extra prep s |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in tol_rows:
             lines.append(f"| {r['series']} | {r['polygons']:,} | {r['exact_1w_ms']:.3f} | {r['tol_1w_ms']:.3f} | "
                          f"{r['exact_1w_ms'] / r['tol_1w_ms']:.1f}× | {r['tol_all_ms']:.3f} | "
                          f"{r['err_over_tol']:.1e} | {r['bound_over_tol']:.2f} | {r['edges_summed']:.0f} | "
-                         f"{r['clear_nodes']:.0f} | {r['prep_tol_s']:.2f} |")
+                         f"{r['clear_nodes']:.0f} | {r.get('linear', 0):.0f} | {r['prep_tol_s']:.2f} |")
         vis = sorted((r for r in tol_rows if r["series"] == "visible"), key=lambda r: r["polygons"])
         ref = [r for r in vis if 5000 <= r["polygons"] <= 20000]
         if vis and ref:
@@ -371,34 +375,56 @@ def main(argv=None):
 
 def ratio_pair(core, subdivisions, args):
     """The goal of issue 10 part 4 measured side by side: two visible boxes, exact and with the tolerance,
-    calls interleaved in one process (``workers=1``); returns markdown lines."""
+    for every radiance of ``--ratio-radiance``, all calls interleaved in one process (``workers=1``);
+    returns markdown lines."""
+    kinds = [k for k in args.ratio_radiance.split(",") if k] or [args.radiance]
     cases = []
-    for sub in subdivisions:
-        verts, quads, rad, box = box_arrays(sub)
-        scene = scene_of(core, verts, quads, rad)
-        p, nrm = receivers(box, scene, args.points)
-        core.prepare_scene(scene)
-        exact = core.irradiance(scene, p, nrm, workers=1)
-        tol = args.tolerance * exact.mean(axis=0)
-        core.irradiance(scene, p, nrm, workers=1, tolerance=tol)        # the proxy scene, once
-        cases.append((scene, p, nrm, tol))
+    for kind in kinds:
+        for sub in subdivisions:
+            verts, quads, rad, box = box_arrays(sub, kind)
+            scene = scene_of(core, verts, quads, rad)
+            p, nrm = receivers(box, scene, args.points)
+            core.prepare_scene(scene)
+            exact = core.irradiance(scene, p, nrm, workers=1)
+            tol = args.tolerance * exact.mean(axis=0)
+            t = time.perf_counter()
+            h, st = core.irradiance(scene, p, nrm, workers=1, tolerance=tol, return_stats=True)   # proxies, once
+            extra = time.perf_counter() - t
+            err = np.abs(h - exact)
+            assert (err <= st.error_bound).all(), "measured error above the returned bound"
+            info = {"err": float((err / tol).max()), "bound": float((st.error_bound / tol).max()),
+                    "linear": float(st.linear_proxies.mean()), "edges": float(st.edges_summed.mean()),
+                    "nodes": float(st.clear_nodes.mean()), "extra": extra}
+            cases.append((kind, scene, p, nrm, tol, info))
     best = {}
-    for _ in range(max(args.repeat, 3)):
-        for i, (scene, p, nrm, tol) in enumerate(cases):
+    reps = max(args.repeat, 3)
+    for _ in range(reps):
+        for i, (_, scene, p, nrm, tol, _) in enumerate(cases):
             for kind, kw in (("exact", {}), ("tol", {"tolerance": tol})):
                 t = per_point(_call(core.irradiance, workers=1, **kw), scene, p, nrm, repeat=1)[0]
                 best[i, kind] = min(best.get((i, kind), np.inf), t)
-    (a, b) = (cases[0][0].n_polygons, cases[1][0].n_polygons)
     ms = {k: 1e3 * v for k, v in best.items()}
-    log(f"ratio pair {a} / {b}: {ms}")
-    return ["", f"### Side by side: {a:,} and {b:,} polygons (interleaved, one process, fastest of "
-            f"{max(args.repeat, 3)}, {args.points} points each)\n",
-            "| polygons | exact ms/pt | tolerance ms/pt |", "|---|---|---|",
-            f"| {a:,} | {ms[0, 'exact']:.3f} | {ms[0, 'tol']:.3f} |",
-            f"| {b:,} | {ms[1, 'exact']:.3f} | {ms[1, 'tol']:.3f} |", "",
-            f"{b:,} with the tolerance / {a:,} with the tolerance: **{ms[1, 'tol'] / ms[0, 'tol']:.1f}×**; "
-            f"/ {a:,} exact: **{ms[1, 'tol'] / ms[0, 'exact']:.1f}×**; exact / exact: "
-            f"{ms[1, 'exact'] / ms[0, 'exact']:.1f}×."]
+    log(f"ratio pairs: {ms}")
+    lines = ["", f"### Side by side: {subdivisions[0]} and {subdivisions[1]} subdivisions, radiance "
+             f"{', '.join(kinds)} (interleaved, one process, fastest of {reps}, {args.points} points each)\n",
+             "*linear / edges / nodes*: per point, the linear proxies taken, the welded edges summed and the clear "
+             "nodes; *first call*: the first call with the tolerance (proxy scene, node fits and the calls' own "
+             "work).\n",
+             "| radiance | polygons | exact ms/pt | tolerance ms/pt | error / tol | bound / tol | linear | edges | "
+             "nodes | first call s |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for i, (kind, scene, _, _, _, info) in enumerate(cases):
+        lines.append(f"| {kind} | {scene.n_polygons:,} | {ms[i, 'exact']:.3f} | {ms[i, 'tol']:.3f} | "
+                     f"{info['err']:.1e} | {info['bound']:.2f} | {info['linear']:.0f} | {info['edges']:.0f} | "
+                     f"{info['nodes']:.0f} | {info['extra']:.1f} |")
+    lines.append("")
+    for j, kind in enumerate(kinds):
+        a, b = 2 * j, 2 * j + 1
+        na, nb = cases[a][1].n_polygons, cases[b][1].n_polygons
+        lines.append(f"{kind}: {nb:,} with the tolerance / {na:,} with the tolerance: "
+                     f"**{ms[b, 'tol'] / ms[a, 'tol']:.1f}×**; / {na:,} exact: "
+                     f"**{ms[b, 'tol'] / ms[a, 'exact']:.1f}×**; exact / exact: "
+                     f"{ms[b, 'exact'] / ms[a, 'exact']:.1f}×.")
+    return lines
 
 
 def plot(results, path):

@@ -482,7 +482,7 @@ def proxy_scene(scene, occ, tolerance):
 
 #: share of the clear nodes' tolerance the linear proxies may use (the edges left out get the rest, and
 #: whatever the proxies leave unused)
-LINEAR_SHARE = 0.75
+LINEAR_SHARE = 0.9
 #: a node with a welded list of at most this many edges is summed over them rather than by its proxy
 LINEAR_EDGES = 8
 #: the members of a node fill its rectangle when their areas sum to it within this fraction
@@ -492,7 +492,7 @@ FIT_BATCH = 2**18
 #: a node's proxy is integrated over at most this many rectangles
 MAX_RECTS = 4
 #: Gauss–Legendre nodes per side of a proxy's rectangles (the rule's error is bounded and budgeted)
-QUAD_NODES = 4
+QUAD_NODES = 3
 
 
 def _merge_rects(rects: list) -> list:
@@ -766,10 +766,11 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
         |error| <= |δ| (14 max|ε| I / r_min⁵ + 28 |g| saw / r_min⁵ + defect0 / r_c³ + 3 defect1 / r_c⁴
                         + mismatch / r_min³) + the rule's error (:func:`_quadrature_bound`)
 
-    (``r_c = |c − P|``). The proxy is taken when this is at most ``tolerance × A |δ| h_min / (π r_max⁴)``,
-    a lower bound of the node's form factor ``F_v`` times the tolerance (``h_min`` the box's lowest corner
-    above P's horizon, ``r_max`` the sphere's farthest point): the proxies a receiver takes see disjoint
-    parts of its hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
+    (``r_c = |c − P|``). The proxy is taken when this is at most the tolerance times a lower bound of the
+    node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the box's lowest
+    corner above P's horizon, ``r_max`` the sphere's farthest point) and ``A k(c) − 14 |δ| I / (π
+    r_min⁵)`` (Taylor about the centroid). The proxies a receiver takes see disjoint parts of its
+    hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
     """
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
     ok = fit.ok[en]
@@ -792,7 +793,12 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
                               + fit.defect0[en] / (rc**3)[:, None] + 3.0 * fit.defect1[en] / (rc**4)[:, None]
                               + fit.mismatch[en] / (rmin**3)[:, None]) * (1.0 + SAFETY)
     bound += _quadrature_bound(fit, en, delta, rmin, rmax)
-    allowed = tol[None, :] * (fit.area[en] * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4))[:, None]
+    # a lower bound of F_v: the box's lowest corner and farthest point, or k at the centroid less the
+    # Hessian's remainder (the first-order term integrates to zero about the centroid)
+    f_box = fit.area[en] * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4)
+    nu = np.einsum("ij,ij->i", normals[ep], cu)
+    f_mid = delta * (fit.area[en] * nu / rc**4 - 14.0 * fit.inertia[en] / r5) / np.pi
+    allowed = tol[None, :] * np.maximum(f_box, f_mid * (1.0 - 1e-12))[:, None]
     ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
     return ok, np.where(geo[:, None], bound, np.inf)
 
@@ -834,14 +840,16 @@ def linear_node_irradiance(fit: NodeFits, point, node, points, normals):
     delta = np.abs(np.einsum("ij,ij->i", fit.normal[node], cu))
     # every pair's rectangles (a pair's are consecutive), QUAD_NODES² points each: x = r0 + a s1 + b s2
     k, rid = expand(node, fit.rect_ptr, np.arange(len(fit.rect)))
-    r0 = fit.rect[rid, 0] - p[k]
-    s1 = fit.rect[rid, 1] - fit.rect[rid, 0]
-    s2 = fit.rect[rid, 3] - fit.rect[rid, 0]
+    rect = fit.rect[rid]
+    r0 = rect[:, 0] - p[k]
+    s1 = rect[:, 1] - rect[:, 0]
+    s2 = rect[:, 3] - rect[:, 0]
     area = np.linalg.norm(np.cross(s1, s2), axis=1)
     nk = nn[k]
-    g = fit.grad[node][k]                                                   # (R, 3 xyz, 3 channels)
+    nk_node = node[k]
+    g = fit.grad[nk_node]                                                   # (R, 3 xyz, 3 channels)
     # L_lin and N·u are affine in (a, b): per rectangle three coefficients
-    alpha = fit.value[node][k] + np.einsum("ri,ric->rc", r0 - cu[k], g)
+    alpha = fit.value[nk_node] + np.einsum("ri,ric->rc", r0 - cu[k], g)
     beta = np.einsum("ri,ric->rc", s1, g)
     gamma = np.einsum("ri,ric->rc", s2, g)
     n0, n1, n2 = (np.einsum("ri,ri->r", v, nk) for v in (r0, s1, s2))
