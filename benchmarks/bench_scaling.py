@@ -347,7 +347,8 @@ def main(argv=None):
                   "largest measured |H_tol − H_exact| and the largest returned bound per receiver and channel, "
                   "over the tolerance. *extra prep*: the first tolerance call's proxy scene.\n",
                   "| series | polygons | exact ms/pt | tolerance ms/pt | speed-up | tolerance, all workers ms/pt | "
-                  "error / tol | bound / tol | edges summed /pt | clear nodes /pt | linear proxies /pt | extra prep s |",
+                  "error / tol | bound / tol | edges summed /pt | clear nodes /pt | linear proxies /pt | "
+                  "extra prep s |",
                   "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in tol_rows:
             lines.append(f"| {r['series']} | {r['polygons']:,} | {r['exact_1w_ms']:.3f} | {r['tol_1w_ms']:.3f} | "
