@@ -1,9 +1,20 @@
-"""Error-bounded far field: uniform faces as one polygon, clear tree nodes summed whole, weak edges bounded.
+"""Error-bounded far field: uniform faces as one polygon, clear tree nodes summed whole (over their welded
+edges, or as a linear proxy), weak edges bounded.
 
 Only with a user ``tolerance > 0`` (absolute, W m^-2, per channel; :func:`.local_pass.irradiance`); at
 ``tolerance = 0`` nothing here runs and the result is the exact path's, bit for bit. Half the tolerance
-goes to the proxies, half to the edges left out; the bound actually used is returned per receiver
-(:class:`FarFieldStats`).
+goes to the uniform-face proxies when there are any, the rest to the clear nodes: their linear proxies
+take up to :data:`LINEAR_SHARE` of it (each within its own form factor's share), the edges left out what
+the proxies leave; the bound actually used is returned per receiver (:class:`FarFieldStats`).
+
+**Linear proxies** (:func:`node_fits`, :func:`linear_node_test`, :func:`linear_node_irradiance`). With
+radiance that varies from polygon to polygon (a first-pass solution) few faces are uniform and few
+welded edges cancel. A node whose members fill a few rectangles exactly gets the affine radiance fitted
+to its members' values at their centroids; a receiver that sees the node whole takes ``π ∫ L_lin dF``
+(a 3×3 Gauss rule per rectangle) less the staircase's sawtooth term, when the bound on what that misses
+(the fit's residual against the kernel's Hessian, the sawtooth's remainder, the rule's own error) is
+within the tolerance times a lower bound of the node's form factor: the nodes a receiver takes see
+disjoint parts of its hemisphere, so their bounds sum to at most the tolerance.
 
 **Uniform faces** (:func:`proxy_scene`). A merged face whose members' radiance range is small is
 replaced by its one convex polygon with the mid-range radiance: same occluding geometry, error at most

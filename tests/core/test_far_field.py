@@ -8,6 +8,9 @@ the bound: a chequerboard of contrasting radiance (nothing may be skipped), a lo
 chequerboard and a radiance ramp (edges are skipped, the error is real), a bright small patch among
 dim polygons, receivers close to a subdivided wall, grazing normals, one-sided limits, double-sided
 emitters and a subdivided plane hidden behind a wall. ``tolerance = 0`` is the exact path, bit for bit.
+The linear proxies of whole nodes (varying radiance) are checked node by node against the exact sums
+over their members (a curved falloff, a steep ramp, a hard shadow edge, a tiny chequerboard), and end to
+end on a box whose radiance differs on every polygon.
 """
 
 from __future__ import annotations
