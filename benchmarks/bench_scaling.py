@@ -55,11 +55,60 @@ from hemisphere_local_pass.scenes import camera_rays, cornell_box
 DOCS = ROOT / "docs"
 
 
-def box_arrays(subdivisions: int):
+#: radiance of the visible boxes: "constant" (per part) or "smooth" (see :func:`smooth_radiance`)
+RADIANCE = "constant"
+
+
+def box_arrays(subdivisions: int, radiance: str | None = None):
     """``(vertices (V, 3), quads (n, 4), radiance (n, 3), box)`` of a closed Cornell box."""
     box = cornell_box(subdivisions, block_detail=1.05 if subdivisions > 5 else 1.0)
+    verts, quads = np.asarray(box.vertices), np.array(box.polygons, dtype=np.int64)
+    if (radiance or RADIANCE) == "smooth":
+        return verts, quads, smooth_radiance(verts, quads, box), box
     rad = box.emission + 0.1 * box.reflectivity * (box.emission.sum(axis=1) == 0)[:, None]
-    return np.asarray(box.vertices), np.array(box.polygons, dtype=np.int64), rad, box
+    return verts, quads, rad, box
+
+
+def smooth_radiance(verts, quads, box) -> np.ndarray:
+    """A radiosity-like radiance, smooth over every wall and different on every polygon, with hard shadows:
+    ``L_i = E_i + ρ_i/π (E_direct(c_i) + E_ambient)`` at the polygon centroid ``c_i``, ``E_direct`` from
+    the light as one small source at its centre (``L_e A cosθ_i cosθ_l / (r² + a²)``, ``a²`` its area /
+    4, zero where a shadow ray from ``c_i`` to the light's centre hits something) and ``E_ambient``
+    0.03 (1 + 0.8 u_z + 0.8 (u_x² + u_y²)) times the light's ``π L_e``, ``u = c_i / size − ½`` (the
+    reflected light a first pass adds; no wall has constant radiance). What a
+    user's first pass gives varies like this (smoothly, shadows aside); the real solver
+    (:mod:`hemisphere_local_pass.first_pass`) takes ~15 min at 10^5 polygons on this machine."""
+    from hemisphere_local_pass.core import Scene
+
+    n = len(quads)
+    scene = Scene.from_arrays(verts, quads.ravel(), np.arange(n, dtype=np.int64) * 4, np.full(n, 4, dtype=np.int64),
+                              np.zeros((n, 3)))
+    c = verts[quads].mean(axis=1)
+    nrm = scene.poly_normals
+    light = np.flatnonzero(box.emission.sum(axis=1) > 0)
+    area = np.linalg.norm(np.cross(verts[quads[:, 2]] - verts[quads[:, 0]], verts[quads[:, 3]] - verts[quads[:, 1]]),
+                          axis=1) * 0.5
+    a_l = area[light].sum()
+    x_l = (c[light] * area[light, None]).sum(axis=0) / a_l
+    n_l = nrm[light[0]]
+    le = box.emission[light[0]]
+    d = x_l - c
+    r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-30)
+    cos_i = np.maximum(np.einsum("ij,ij->i", nrm, d), 0.0) / np.sqrt(r2)
+    cos_l = np.maximum(-np.einsum("ij,ij->i", n_l[None, :] * np.ones((n, 1)), d), 0.0) / np.sqrt(r2)
+    e_dir = le[None, :] * (a_l * cos_i * cos_l / (r2 + 0.25 * a_l))[:, None]
+    lit = (cos_i > 0) & (cos_l > 0)
+    idx = np.flatnonzero(lit)
+    o = c[idx] + 1e-7 * nrm[idx]
+    hits = cast_rays(scene, o, x_l + 1e-6 * n_l - o, t_max=1.0 - 1e-7, bvh=build_bvh(scene))
+    vis = np.zeros(n, dtype=bool)
+    vis[idx] = ~hits.hit
+    # reflected light: smaller than the direct light on the floor, growing towards the ceiling
+    u = c / box.size - 0.5
+    e_amb = 0.03 * np.pi * le[None, :] * (1.0 + 0.8 * u[:, 2:3] + 0.8 * (u[:, :2] ** 2).sum(axis=1, keepdims=True))
+    rad = box.emission + box.reflectivity / np.pi * (np.where(vis[:, None], e_dir, 0.0) + e_amb)
+    rad[light] = box.emission[light]
+    return rad
 
 
 def grid(nx: int, origin, du, dv):
@@ -167,8 +216,14 @@ def main(argv=None):
     ap.add_argument("--worker-points", type=int, default=1024, help="receivers of the all-workers timing")
     ap.add_argument("--ratio-pair", default="35,160",
                     help="two visible subdivisions timed interleaved, exact and with the tolerance ('' for none)")
+    ap.add_argument("--ratio-radiance", default="",
+                    help="radiances of the ratio pair, e.g. constant,smooth (default: --radiance)")
+    ap.add_argument("--radiance", choices=("constant", "smooth"), default="constant",
+                    help="radiance of the visible boxes: constant per part, or smooth_radiance (varies per polygon)")
     ap.add_argument("--out", default=str(DOCS / "bench_scaling"), help="output prefix ('' for none)")
     args = ap.parse_args(argv)
+    global RADIANCE
+    RADIANCE = args.radiance
     core = importlib.import_module("hemisphere_local_pass.core")
     base = load_baseline(args.baseline) if args.baseline else None
 
@@ -239,7 +294,8 @@ def main(argv=None):
                                   "tol_all_ms": 1e3 * t_all, "err_over_tol": float((err / tol).max()),
                                   "bound_over_tol": float((st.error_bound / tol).max()),
                                   "edges_summed": float(st.edges_summed.mean()),
-                                  "clear_nodes": float(st.clear_nodes.mean())})
+                                  "clear_nodes": float(st.clear_nodes.mean()),
+                                  "linear": float(st.linear_proxies.mean())})
             mf = min(args.ff_points, len(p))
             t_ff = per_point(mod.form_factors, scene, p[:mf], nrm[:mf], repeat=args.repeat)[0] if n <= 200_000 \
                 else np.nan
@@ -261,6 +317,8 @@ def main(argv=None):
              f"--visible {args.visible} --hidden {args.hidden} --below {args.below} --under {args.under} "
              f"--repeat {args.repeat} --tolerance {args.tolerance:g} --worker-points {args.worker_points} "
              f"--ratio-pair {args.ratio_pair or chr(39) * 2}"
+             + (f" --radiance {args.radiance}" if args.radiance != "constant" else "")
+             + (f" --ratio-radiance {args.ratio_radiance}" if args.ratio_radiance else "")
              + (f" --out {args.out}" if args.out != str(DOCS / "bench_scaling") else "")
              + (f" --baseline {args.baseline} --baseline-max {args.baseline_max} --baseline-visible-max "
                 f"{args.baseline_visible_max}" if args.baseline else "") + "`\n",
@@ -289,13 +347,14 @@ def main(argv=None):
                   "largest measured |H_tol − H_exact| and the largest returned bound per receiver and channel, "
                   "over the tolerance. *extra prep*: the first tolerance call's proxy scene.\n",
                   "| series | polygons | exact ms/pt | tolerance ms/pt | speed-up | tolerance, all workers ms/pt | "
-                  "error / tol | bound / tol | edges summed /pt | clear nodes /pt | extra prep s |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "error / tol | bound / tol | edges summed /pt | clear nodes /pt | linear proxies /pt | "
+                  "extra prep s |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in tol_rows:
             lines.append(f"| {r['series']} | {r['polygons']:,} | {r['exact_1w_ms']:.3f} | {r['tol_1w_ms']:.3f} | "
                          f"{r['exact_1w_ms'] / r['tol_1w_ms']:.1f}× | {r['tol_all_ms']:.3f} | "
                          f"{r['err_over_tol']:.1e} | {r['bound_over_tol']:.2f} | {r['edges_summed']:.0f} | "
-                         f"{r['clear_nodes']:.0f} | {r['prep_tol_s']:.2f} |")
+                         f"{r['clear_nodes']:.0f} | {r.get('linear', 0):.0f} | {r['prep_tol_s']:.2f} |")
         vis = sorted((r for r in tol_rows if r["series"] == "visible"), key=lambda r: r["polygons"])
         ref = [r for r in vis if 5000 <= r["polygons"] <= 20000]
         if vis and ref:
@@ -317,34 +376,56 @@ def main(argv=None):
 
 def ratio_pair(core, subdivisions, args):
     """The goal of issue 10 part 4 measured side by side: two visible boxes, exact and with the tolerance,
-    calls interleaved in one process (``workers=1``); returns markdown lines."""
+    for every radiance of ``--ratio-radiance``, all calls interleaved in one process (``workers=1``);
+    returns markdown lines."""
+    kinds = [k for k in args.ratio_radiance.split(",") if k] or [args.radiance]
     cases = []
-    for sub in subdivisions:
-        verts, quads, rad, box = box_arrays(sub)
-        scene = scene_of(core, verts, quads, rad)
-        p, nrm = receivers(box, scene, args.points)
-        core.prepare_scene(scene)
-        exact = core.irradiance(scene, p, nrm, workers=1)
-        tol = args.tolerance * exact.mean(axis=0)
-        core.irradiance(scene, p, nrm, workers=1, tolerance=tol)        # the proxy scene, once
-        cases.append((scene, p, nrm, tol))
+    for kind in kinds:
+        for sub in subdivisions:
+            verts, quads, rad, box = box_arrays(sub, kind)
+            scene = scene_of(core, verts, quads, rad)
+            p, nrm = receivers(box, scene, args.points)
+            core.prepare_scene(scene)
+            exact = core.irradiance(scene, p, nrm, workers=1)
+            tol = args.tolerance * exact.mean(axis=0)
+            t = time.perf_counter()
+            h, st = core.irradiance(scene, p, nrm, workers=1, tolerance=tol, return_stats=True)   # proxies, once
+            extra = time.perf_counter() - t
+            err = np.abs(h - exact)
+            assert (err <= st.error_bound).all(), "measured error above the returned bound"
+            info = {"err": float((err / tol).max()), "bound": float((st.error_bound / tol).max()),
+                    "linear": float(st.linear_proxies.mean()), "edges": float(st.edges_summed.mean()),
+                    "nodes": float(st.clear_nodes.mean()), "extra": extra}
+            cases.append((kind, scene, p, nrm, tol, info))
     best = {}
-    for _ in range(max(args.repeat, 3)):
-        for i, (scene, p, nrm, tol) in enumerate(cases):
+    reps = max(args.repeat, 3)
+    for _ in range(reps):
+        for i, (_, scene, p, nrm, tol, _) in enumerate(cases):
             for kind, kw in (("exact", {}), ("tol", {"tolerance": tol})):
                 t = per_point(_call(core.irradiance, workers=1, **kw), scene, p, nrm, repeat=1)[0]
                 best[i, kind] = min(best.get((i, kind), np.inf), t)
-    (a, b) = (cases[0][0].n_polygons, cases[1][0].n_polygons)
     ms = {k: 1e3 * v for k, v in best.items()}
-    log(f"ratio pair {a} / {b}: {ms}")
-    return ["", f"### Side by side: {a:,} and {b:,} polygons (interleaved, one process, fastest of "
-            f"{max(args.repeat, 3)}, {args.points} points each)\n",
-            "| polygons | exact ms/pt | tolerance ms/pt |", "|---|---|---|",
-            f"| {a:,} | {ms[0, 'exact']:.3f} | {ms[0, 'tol']:.3f} |",
-            f"| {b:,} | {ms[1, 'exact']:.3f} | {ms[1, 'tol']:.3f} |", "",
-            f"{b:,} with the tolerance / {a:,} with the tolerance: **{ms[1, 'tol'] / ms[0, 'tol']:.1f}×**; "
-            f"/ {a:,} exact: **{ms[1, 'tol'] / ms[0, 'exact']:.1f}×**; exact / exact: "
-            f"{ms[1, 'exact'] / ms[0, 'exact']:.1f}×."]
+    log(f"ratio pairs: {ms}")
+    lines = ["", f"### Side by side: {subdivisions[0]} and {subdivisions[1]} subdivisions, radiance "
+             f"{', '.join(kinds)} (interleaved, one process, fastest of {reps}, {args.points} points each)\n",
+             "*linear / edges / nodes*: per point, the linear proxies taken, the welded edges summed and the clear "
+             "nodes; *first call*: the first call with the tolerance (proxy scene, node fits and the calls' own "
+             "work).\n",
+             "| radiance | polygons | exact ms/pt | tolerance ms/pt | error / tol | bound / tol | linear | edges | "
+             "nodes | first call s |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for i, (kind, scene, _, _, _, info) in enumerate(cases):
+        lines.append(f"| {kind} | {scene.n_polygons:,} | {ms[i, 'exact']:.3f} | {ms[i, 'tol']:.3f} | "
+                     f"{info['err']:.1e} | {info['bound']:.2f} | {info['linear']:.0f} | {info['edges']:.0f} | "
+                     f"{info['nodes']:.0f} | {info['extra']:.1f} |")
+    lines.append("")
+    for j, kind in enumerate(kinds):
+        a, b = 2 * j, 2 * j + 1
+        na, nb = cases[a][1].n_polygons, cases[b][1].n_polygons
+        lines.append(f"{kind}: {nb:,} with the tolerance / {na:,} with the tolerance: "
+                     f"**{ms[b, 'tol'] / ms[a, 'tol']:.1f}×**; / {na:,} exact: "
+                     f"**{ms[b, 'tol'] / ms[a, 'exact']:.1f}×**; exact / exact: "
+                     f"{ms[b, 'exact'] / ms[a, 'exact']:.1f}×.")
+    return lines
 
 
 def plot(results, path):

@@ -170,7 +170,8 @@ def _wanted_tiles(scene: Scene, occ: Occluders, row: np.ndarray) -> np.ndarray:
 
 
 def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, use_clear: bool,
-            budget: int = DEFAULT_BUDGET, signed: bool | None = None, far_field: bool = False):
+            budget: int = DEFAULT_BUDGET, signed: bool | None = None, far_field: bool = False,
+            far_tolerance=None):
     """The visibility stage: ``(fragments, ff, clear)``; with ``use_clear`` (callers that only sum over
     fragments) the clear tiles (see :mod:`.clear_tiles`) are left out of the fragments and returned as
     ``clear = (pairs, tile_edges)``, and the visible parts come as signed terms (see
@@ -182,7 +183,9 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
 
     ``far_field`` (with ``use_clear``, constant radiance; only for a tolerance > 0): whole hierarchy nodes
     that are clear are not expanded (:mod:`.far_field`) and come as ``clear = (pairs, tile_edges, nodes)``
-    with ``nodes = (point, node, side)``; without it ``clear`` has two items and nothing changes."""
+    with ``nodes = (point, node, side)``; without it ``clear`` has two items and nothing changes.
+    ``far_tolerance`` (3,): the far field's tolerance, for the nodes taken whole by their linear proxy
+    (:func:`.far_field.clear_node_test`; None: only nodes with a welded list)."""
     signed = use_clear if signed is None else signed
     reps = _representatives(scene)
     row = _row(include)
@@ -203,7 +206,7 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
         free = None if limit is None else ~limit.any(axis=1)
 
         def clear_test(ep, en):
-            ok, side = clear_node_test(ne, h, points, normals, ep, en)
+            ok, side = clear_node_test(ne, h, points, normals, ep, en, far_tolerance)
             return (ok if free is None else ok & free[ep]), side
 
     tiles = visit_tiles(h, occ, sv, table, cov, points, normals, wanted, clear_test)
@@ -218,7 +221,8 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     k = scene.poly_vertices.shape[1] + 1
     n_cand = int(np.diff(occ.tile_ptr)[tiles.tile[keep]].sum()) if len(tiles.point) else 0
     if n_cand * k > budget and len(points) > 1:
-        return _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field)
+        return _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field,
+                      far_tolerance)
     tiles = tiles.take(keep) if not keep.all() else tiles
     cov.tiles = tiles
     cand = hemisphere_candidates(scene, points, normals, limit, include, occ, tiles)
@@ -246,14 +250,16 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     return frags, ff, clear
 
 
-def _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field=False):
+def _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field=False,
+           far_tolerance=None):
     """:func:`visible` for the two halves of the receivers, joined (receiver indices as in the whole)."""
     h = len(points) // 2
     parts = []
     for s, e in ((0, h), (h, len(points))):
         inc = None if include is None else (include if np.asarray(include).shape[0] == 1 else include[s:e])
         parts.append(visible(scene, points[s:e], normals[s:e], None if limit is None else limit[s:e], occ, inc,
-                             use_clear=use_clear, budget=budget, signed=signed, far_field=far_field))
+                             use_clear=use_clear, budget=budget, signed=signed, far_field=far_field,
+                             far_tolerance=far_tolerance))
     (f0, ff0, c0), (f1, ff1, c1) = parts
     f1.point = f1.point + h
     if f0.verts is None:

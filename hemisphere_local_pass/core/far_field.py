@@ -1,9 +1,20 @@
-"""Error-bounded far field: uniform faces as one polygon, clear tree nodes summed whole, weak edges bounded.
+"""Error-bounded far field: uniform faces as one polygon, clear tree nodes summed whole (over their welded
+edges, or as a linear proxy), weak edges bounded.
 
 Only with a user ``tolerance > 0`` (absolute, W m^-2, per channel; :func:`.local_pass.irradiance`); at
 ``tolerance = 0`` nothing here runs and the result is the exact path's, bit for bit. Half the tolerance
-goes to the proxies, half to the edges left out; the bound actually used is returned per receiver
-(:class:`FarFieldStats`).
+goes to the uniform-face proxies when there are any, the rest to the clear nodes: their linear proxies
+take up to :data:`LINEAR_SHARE` of it (each within its own form factor's share), the edges left out what
+the proxies leave; the bound actually used is returned per receiver (:class:`FarFieldStats`).
+
+**Linear proxies** (:func:`node_fits`, :func:`linear_node_test`, :func:`linear_node_irradiance`). With
+radiance that varies from polygon to polygon (a first-pass solution) few faces are uniform and few
+welded edges cancel. A node whose members fill a few rectangles exactly gets the affine radiance fitted
+to its members' values at their centroids; a receiver that sees the node whole takes ``π ∫ L_lin dF``
+(a 3×3 Gauss rule per rectangle) less the staircase's sawtooth term, when the bound on what that misses
+(the fit's residual against the kernel's Hessian, the sawtooth's remainder, the rule's own error) is
+within the tolerance times a lower bound of the node's form factor: the nodes a receiver takes see
+disjoint parts of its hemisphere, so their bounds sum to at most the tolerance.
 
 **Uniform faces** (:func:`proxy_scene`). A merged face whose members' radiance range is small is
 replaced by its one convex polygon with the mid-range radiance: same occluding geometry, error at most
@@ -69,7 +80,8 @@ class FarFieldStats:
         error_bound: (m, 3) bound on ``|H − H_exact|`` per receiver and channel: what the far field left
             out plus the rounding allowance (0 at tolerance 0, where H is exact).
         edges_skipped, edges_summed: (m,) welded edges left out (bounded) and summed per receiver by the
-            far field (0 at tolerance 0); clear_nodes: (m,) hierarchy nodes above the tiles summed whole.
+            far field (0 at tolerance 0); clear_nodes: (m,) hierarchy nodes above the tiles summed whole;
+        linear_proxies: (m,) nodes and tiles summed as their linear proxy (:func:`linear_node_test`).
     """
 
     tolerance: np.ndarray
@@ -77,6 +89,7 @@ class FarFieldStats:
     edges_skipped: np.ndarray | None = None
     edges_summed: np.ndarray | None = None
     clear_nodes: np.ndarray | None = None
+    linear_proxies: np.ndarray | None = None
 
     @property
     def max_error_bound(self) -> float:
@@ -98,6 +111,7 @@ class NodeEdges:
         normal, point: (N, 3) a plane of the node's members (its first tile's); tilt, noise: (N,) the
             members' largest plane uncertainties; dn, d0: (N,) how far the tiles' planes can be from
             the node's: ``|d_t(x) − d_v(x)| <= dn |x − c_v| + d0`` for the signed distances d of any x.
+        fit: the nodes' linear proxies (:class:`NodeFits`, :func:`node_fits`).
     """
 
     ptr: np.ndarray
@@ -112,6 +126,7 @@ class NodeEdges:
     noise: np.ndarray
     dn: np.ndarray
     d0: np.ndarray
+    fit: NodeFits | None = None
 
 
 def _levels(h) -> np.ndarray:
@@ -250,12 +265,15 @@ def node_edges(scene, occ, h, te) -> NodeEdges:
     ptr[1:] = np.cumsum(np.bincount(nd, minlength=n_nodes))
     mass = _segment_prefix(m, ptr[nd])
     return NodeEdges(ptr, np.ascontiguousarray(a.T), np.ascontiguousarray(b.T), w, mass, usable, normal, point,
-                     tilt, noise, dn, d0)
+                     tilt, noise, dn, d0, node_fits(scene, occ, h, te.eligible))
 
 
-def clear_node_test(ne: NodeEdges, h, points, normals, ep, en):
+def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     """For (receiver, inner node) entries ``ep, en (E,)`` whose face has a volume instance and whose list
     of cutting volumes is empty: ``(clear (E,) bool, side (E,) float ±1)``.
+
+    A clear node is summed whole: over its welded list (``ne.usable``), or by its linear proxy when that
+    fits :data:`LINEAR_SHARE` of ``tolerance`` (3,) (:func:`linear_node_test`; None: lists only).
 
     Clear: every tile below the node would be a clear tile (:func:`.clear_tiles.clear_pairs`) — its box's
     corners are above the horizon by more than the flat and below-horizon tolerances of the tiles' tests
@@ -263,18 +281,24 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en):
     plane by more than :data:`NODE_SIDE_FACTOR` times the tile test's margin, the tiles' plane spread
     (``dn``, ``d0``) included.
     """
-    ok = ne.usable[en]
+    geo = np.ones(len(en), dtype=bool)
     corners = h.corners[en] - points[ep][:, None, :]
     height = np.matmul(corners, normals[ep][:, :, None])[..., 0].min(axis=1)
     rel = h.centers[en] - points[ep]
     dist = np.sqrt(np.einsum("ij,ij->i", rel, rel))
     r = h.radii[en]
     scale = dist + r
-    ok &= height > PLANE_EPS * (scale + r) + 1e-15 * np.abs(corners).max(axis=(1, 2))
+    geo &= height > PLANE_EPS * (scale + r) + 1e-15 * np.abs(corners).max(axis=(1, 2))
     d = np.einsum("ij,ij->i", ne.normal[en], ne.point[en] - points[ep])
     plane_tol = ((PLANE_EPS + ne.tilt[en]) * scale + ne.noise[en] + COORD_EPS * np.abs(points[ep]).max(axis=1))
     spread = ne.dn[en] * dist + ne.d0[en]
-    ok &= np.abs(d) - spread > NODE_SIDE_FACTOR * (SIDE_MARGIN * scale + 4.0 * plane_tol)
+    geo &= np.abs(d) - spread > NODE_SIDE_FACTOR * (SIDE_MARGIN * scale + 4.0 * plane_tol)
+    ok = geo & ne.usable[en]
+    if tolerance is not None and ne.fit is not None:
+        cand = np.flatnonzero(geo & ~ok & ne.fit.ok[en])
+        if len(cand):
+            ok[cand] = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand],
+                                        LINEAR_SHARE * np.asarray(tolerance))[0]
     return ok, np.sign(d)
 
 
@@ -287,16 +311,42 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
             pairs; points, normals: (m, 3) receivers; tolerance: (3,) absolute tolerance on H.
     Returns:
         ``H (m, 3)`` (W m^-2, the ``π ·`` of eq. 3 included), ``bound (m, 3)`` (see the module doc),
-        ``skipped (m,)`` edges left out and ``summed (m,)`` edges computed per receiver.
+        ``skipped (m,)`` edges left out, ``summed (m,)`` edges computed and ``linear (m,)`` linear
+        proxies taken per receiver.
     """
     m = len(points)
     out = np.zeros((m, 3))
     bound = np.zeros((m, 3))
     if not len(point):
-        return out, bound, np.zeros(m), np.zeros(m)
+        return out, bound, np.zeros(m), np.zeros(m), np.zeros(m)
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
+    # linear proxies: nodes without a list that the traversal took for their proxy, and nodes and tiles
+    # whose proxy fits and is shorter than their list
+    h_lin = np.zeros((m, 3))
+    b_lin = np.zeros((m, 3))
+    n_lin = np.zeros(m)
+    if ne.fit is not None:
+        n_list = ne.ptr[node + 1] - ne.ptr[node]
+        forced = ~ne.usable[node] & ne.fit.ok[node]
+        cand = np.flatnonzero(ne.fit.ok[node] & ((n_list > LINEAR_EDGES) | forced))
+        fits, lb = linear_node_test(ne.fit, h, points, normals, point[cand], node[cand], LINEAR_SHARE * tol)
+        take = fits | forced[cand]
+        sel, lb = cand[take], lb[take]
+        lin = np.zeros(len(point), dtype=bool)
+        lin[sel] = True
+        if len(sel):
+            hl, rnd = linear_node_irradiance(ne.fit, point[sel], node[sel], points, normals)
+            for c in range(3):
+                h_lin[:, c] = np.bincount(point[sel], weights=hl[:, c], minlength=m)
+                b_lin[:, c] = np.bincount(point[sel], weights=lb[:, c] + rnd[:, c], minlength=m)
+            n_lin = np.bincount(point[sel], minlength=m).astype(np.float64)
+            point, node, side = point[~lin], node[~lin], side[~lin]
+    if not len(point):
+        return h_lin, b_lin, np.zeros(m), np.zeros(m), n_lin
+    # the edges left out: what the proxies left of the tolerance, split evenly over the receiver's pairs
     n_pairs = np.bincount(point, minlength=m)
-    share = tol[None, :] * (1.0 - SAFETY) / np.maximum(n_pairs[point], 1)[:, None]           # (P, 3)
+    rest = np.maximum(tol[None, :] * (1.0 - SAFETY) - b_lin, 0.0)
+    share = rest[point] / np.maximum(n_pairs[point], 1)[:, None]                               # (P, 3)
     rel = h.centers[node] - points[point]
     d = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - h.radii[node]
     start, n_e = ne.ptr[node], ne.ptr[node + 1] - ne.ptr[node]
@@ -360,7 +410,8 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     out *= 0.5
     # the proxies' radiance bound: π Σ ½ range F over clear proxies, = ½ Σ side V t (>= 0 exactly)
     bound += ROUNDING * 0.5 * mag + 0.5 * np.abs(vsum) * (1.0 + SAFETY)
-    return out, bound, np.bincount(point, weights=skip, minlength=m), np.bincount(point, weights=n_run, minlength=m)
+    return (out + h_lin, bound + b_lin, np.bincount(point, weights=skip, minlength=m),
+            np.bincount(point, weights=n_run, minlength=m), n_lin)
 
 
 def _face_ranges(scene, occ):
@@ -436,3 +487,401 @@ def proxy_scene(scene, occ, tolerance):
     sp._half_range = half_range
     scene._proxy = (occ, key, sp, half_range)
     return sp, half_range
+
+
+# --- linear proxies of whole nodes -------------------------------------------------------------------
+
+#: share of the clear nodes' tolerance the linear proxies may use (the edges left out get the rest, and
+#: whatever the proxies leave unused)
+LINEAR_SHARE = 0.9
+#: a node with a welded list of at most this many edges is summed over them rather than by its proxy
+LINEAR_EDGES = 8
+#: the members of a node fill its rectangle when their areas sum to it within this fraction
+RECT_FILL = 1e-9
+#: (node, member) pairs per batch of the fits (memory)
+FIT_BATCH = 2**18
+#: a node's proxy is integrated over at most this many rectangles
+MAX_RECTS = 4
+#: Gauss–Legendre nodes per side of a proxy's rectangles (the rule's error is bounded and budgeted)
+QUAD_NODES = 3
+
+
+def _merge_rects(rects: list) -> list:
+    """Rectangles ``(lo1, hi1, lo2, hi2)`` with disjoint interiors, two merged while they share a whole side."""
+    rects = list(rects)
+    merged = True
+    while merged and len(rects) > 1:
+        merged = False
+        for i in range(len(rects)):
+            a = rects[i]
+            for j in range(i + 1, len(rects)):
+                b = rects[j]
+                if a[2] == b[2] and a[3] == b[3] and (a[1] == b[0] or b[1] == a[0]):
+                    rects[i] = (min(a[0], b[0]), max(a[1], b[1]), a[2], a[3])
+                elif a[0] == b[0] and a[1] == b[1] and (a[3] == b[2] or b[3] == a[2]):
+                    rects[i] = (a[0], a[1], min(a[2], b[2]), max(a[3], b[3]))
+                else:
+                    continue
+                del rects[j]
+                merged = True
+                break
+            if merged:
+                break
+    return rects
+
+
+@dataclass
+class NodeFits:
+    """Linear proxies of the hierarchy's nodes (``N`` nodes; see :func:`node_fits`).
+
+    Attributes:
+        ok: (N,) the node has a proxy: its members (all of eligible tiles) fill at most
+            :data:`MAX_RECTS` rectangles exactly.
+        rect: (R, 4, 3) those rectangles (world coordinates), rect_ptr: (N+1,) each node's range.
+        normal: (N, 3) its unit normal; centre: (N, 3) the members' centroid c (on the plane).
+        value: (N, 3) ``a``, grad: (N, 3, 3) ``g`` (world vector per channel, in the plane): the
+            affine radiance ``L_lin(x) = a + g·(x − c)`` fitted (area-weighted least squares) to the
+            members' constant radiance at their centroids.
+        resid: (N, 3) ``max_i |ε_i|``, ``ε_i = L_i − L_lin(c_i)`` at the members' centroids c_i;
+            gnorm: (N, 3) ``|g|``.
+        inertia: (N,) ``I = ∫ |x − c|² dA`` over the members; area: (N,) ``A``; jsum: (N, 3, 3)
+            ``Σ_i J_i``, ``J_i = ∫_i (x − c_i)(x − c_i)ᵀ dA``; saw: (N,) ``Σ_i tr J_i (|c_i − c| + ρ_i / 2)``
+            (``ρ_i`` member i's largest vertex distance from c_i).
+        defect0, defect1: (N, 3) bounds on ``|Σ A_i ε_i|`` and ``|Σ A_i ε_i (c_i − c)|`` (zero for the
+            exact least-squares fit, here its rounding).
+        mismatch: (N, 3) ``lmax × Σ (|A_rect − A| + RECT_FILL A)`` over the tiles: what the rectangles'
+            area beyond the members' can add; lmax: (N, 3) ``|a| + |g| × diagonal`` (>= |L_lin| on the
+            node); half_side: (N,) the largest half side of its rectangles.
+    """
+
+    ok: np.ndarray
+    rect: np.ndarray
+    rect_ptr: np.ndarray
+    normal: np.ndarray
+    centre: np.ndarray
+    value: np.ndarray
+    grad: np.ndarray
+    resid: np.ndarray
+    gnorm: np.ndarray
+    inertia: np.ndarray
+    jsum: np.ndarray
+    saw: np.ndarray
+    area: np.ndarray
+    defect0: np.ndarray
+    defect1: np.ndarray
+    mismatch: np.ndarray
+    lmax: np.ndarray | None = None
+    half_side: np.ndarray | None = None
+
+
+def _polygon_moments(verts, counts):
+    """Area ``(n,)``, centroid ``(n, 3)``, central second moment ``∫ (x−c)(x−c)ᵀ dA (n, 3, 3)`` and the
+    largest vertex distance from the centroid ``(n,)`` of convex planar polygons ``verts (n, K, 3)``."""
+    n, K = verts.shape[:2]
+    o = verts[:, 0]
+    area = np.zeros(n)
+    s1 = np.zeros((n, 3))
+    tris = []
+    for k in range(1, K - 1):
+        a, b = verts[:, k] - o, verts[:, k + 1] - o
+        w = np.where(k + 1 < counts, 0.5 * np.linalg.norm(np.cross(a, b), axis=1), 0.0)
+        area += w
+        s1 += w[:, None] * (a + b) / 3.0
+        tris.append((a, b, w))
+    cen_rel = s1 / np.where(area > 0, area, 1.0)[:, None]
+    second = np.zeros((n, 3, 3))
+    for a, b, w in tris:
+        # a triangle about its own centroid t: A/12 Σ_j e_j e_jᵀ (e_j = v_j − t), then moved to the polygon's
+        t = (a + b) / 3.0
+        for e in (-t, a - t, b - t):
+            second += (w / 12.0)[:, None, None] * e[:, :, None] * e[:, None, :]
+        dt = t - cen_rel
+        second += w[:, None, None] * dt[:, :, None] * dt[:, None, :]
+    cen = o + cen_rel
+    valid = np.arange(K)[None, :] < counts[:, None]
+    rho = np.where(valid, np.linalg.norm(verts - cen[:, None, :], axis=2), 0.0).max(axis=1)
+    return area, cen, second, rho
+
+
+def node_fits(scene, occ, h, eligible) -> NodeFits:
+    """The :class:`NodeFits` of hierarchy ``h`` over ``occ`` (tiles ``eligible (T,)``; constant radiance).
+
+    A node gets a proxy when all its tiles are eligible and its members exactly fill a rectangle whose
+    sides follow the first edge of its first member (subdivided walls, block faces: every node of a
+    grid tiling up to its ragged border). Costs O(n × depth), vectorised in batches of nodes."""
+    n_nodes = len(h.radii)
+    area_p, cen_p, sec_p, rho_p = _polygon_moments(scene.poly_vertices, scene.poly_counts)
+    rad = scene.poly_radiance
+    # members of every node, grouped by node: tiles perm[first:last], then each tile's members
+    mem_count_rank = np.diff(occ.tile_ptr)[h.perm]                          # members per tile, tree order
+    csum = np.concatenate([[0], np.cumsum(mem_count_rank)])
+    mem_of_node = csum[h.last_tile] - csum[h.first_tile]
+    # members in tree order (tile perm[0]'s, then perm[1]'s, ...)
+    _, mem_tree = expand(h.perm, occ.tile_ptr, occ.tile_members)
+    elig_rank = np.concatenate([[0], np.cumsum(~eligible[h.perm])])
+    all_elig = (elig_rank[h.last_tile] - elig_rank[h.first_tile]) == 0
+    first_mem = mem_tree[np.minimum(csum[h.first_tile], len(mem_tree) - 1)] if len(mem_tree) else \
+        np.zeros(n_nodes, dtype=np.int64)
+    z3 = np.zeros((n_nodes, 3))
+    out = NodeFits(np.zeros(n_nodes, dtype=bool), np.zeros((0, 4, 3)), np.zeros(n_nodes + 1, dtype=np.int64),
+                   z3.copy(), z3.copy(), z3.copy(),
+                   np.zeros((n_nodes, 3, 3)), z3.copy(), z3.copy(), np.zeros(n_nodes), np.zeros((n_nodes, 3, 3)),
+                   np.zeros(n_nodes), np.zeros(n_nodes), z3.copy(), z3.copy(), z3.copy())
+    if not len(mem_tree):
+        return out
+    # every node of a face in its root's frame: normal of the root's first member, e1 along that member's
+    # first edge, origin the root's sphere centre moved into that member's plane
+    root = h.root[h.face]
+    fm = first_mem[root]
+    nrm = scene.poly_normals[fm]
+    e1 = scene.poly_vertices[fm, 1] - scene.poly_vertices[fm, 0]
+    e1 -= np.einsum("ij,ij->i", e1, nrm)[:, None] * nrm
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1), 1e-300)[:, None]
+    e2 = np.cross(nrm, e1)
+    rc0 = h.centers[root]
+    ref = rc0 - np.einsum("ij,ij->i", rc0 - scene.poly_vertices[fm, 0], nrm)[:, None] * nrm
+    box_q = np.zeros((n_nodes, 4))           # members' extent in the frame: lo1, hi1, lo2, hi2
+    leaf_rect = np.zeros(n_nodes, dtype=bool)
+    slack = np.zeros(n_nodes)
+    fit_good = np.zeros(n_nodes, dtype=bool)
+    nodes = np.flatnonzero(all_elig & (mem_of_node > 0))
+    ends = np.cumsum(mem_of_node[nodes])
+    cuts = np.searchsorted(ends, np.arange(FIT_BATCH, ends[-1] if len(ends) else 0, FIT_BATCH), side="right")
+    for part in np.split(nodes, np.unique(cuts)):
+        if not len(part):
+            continue
+        cnt = mem_of_node[part]
+        b = np.repeat(np.arange(len(part)), cnt)
+        pos = np.arange(len(b)) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(csum[h.first_tile[part]], cnt)
+        mem = mem_tree[pos]
+        v = part[b]
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        # the rectangle test: extent of the members' vertices along e1, e2 against their total area
+        rel = scene.poly_vertices[mem] - ref[v][:, None, :]
+        u1 = np.einsum("ikj,ij->ik", rel, e1[v])
+        u2 = np.einsum("ikj,ij->ik", rel, e2[v])
+        off = np.abs(np.einsum("ikj,ij->ik", rel, nrm[v])).max(axis=1)       # coplanar with the frame
+        lo1, hi1 = np.minimum.reduceat(u1.min(axis=1), starts), np.maximum.reduceat(u1.max(axis=1), starts)
+        lo2, hi2 = np.minimum.reduceat(u2.min(axis=1), starts), np.maximum.reduceat(u2.max(axis=1), starts)
+        flat = np.maximum.reduceat(off, starts)
+        A = np.add.reduceat(area_p[mem], starts)
+        a_rect = (hi1 - lo1) * (hi2 - lo2)
+        size = np.maximum(hi1 - lo1, hi2 - lo2)
+        good = (A > 0) & (flat <= 1e-9 * size)
+        box_q[part] = np.stack([lo1, hi1, lo2, hi2], axis=1)
+        leaf_rect[part] = np.abs(a_rect - A) <= RECT_FILL * A
+        slack[part] = np.abs(a_rect - A) + RECT_FILL * A
+        # the fit: area-weighted least squares of the members' values at their centroids, about the
+        # members' centroid c (then Σ A_i ε_i = 0 and Σ A_i ε_i (c_i − c) = 0, ε_i = L_i − L_lin(c_i))
+        ap = area_p[mem]
+        d = cen_p[mem] - ref[v]
+        dq = np.stack([np.einsum("ij,ij->i", d, e1[v]), np.einsum("ij,ij->i", d, e2[v])], axis=1)   # (P, 2)
+        cq = np.add.reduceat(ap[:, None] * dq, starts) / np.where(A > 0, A, 1.0)[:, None]
+        dc = dq - cq[b]
+        L = rad[mem]
+        C2 = np.add.reduceat(ap[:, None, None] * dc[:, :, None] * dc[:, None, :], starts)
+        l0 = np.add.reduceat(ap[:, None] * L, starts)                                           # (B, 3)
+        lc1 = np.add.reduceat(ap[:, None, None] * dc[:, :, None] * L[:, None, :], starts)         # (B, 2, 3)
+        det = C2[:, 0, 0] * C2[:, 1, 1] - C2[:, 0, 1] ** 2
+        tr = C2[:, 0, 0] + C2[:, 1, 1]
+        good &= det > 1e-10 * tr * tr
+        inv = np.stack([np.stack([C2[:, 1, 1], -C2[:, 0, 1]], 1), np.stack([-C2[:, 0, 1], C2[:, 0, 0]], 1)], 1) \
+            / np.where(good, det, 1.0)[:, None, None]
+        gq = np.einsum("bij,bjc->bic", inv, lc1)                                                # (B, 2, 3)
+        a0 = l0 / np.where(A > 0, A, 1.0)[:, None]
+        eps = L - a0[b] - np.einsum("pi,pic->pc", dc, gq[b])                                    # (P, 3)
+        res = np.maximum.reduceat(np.abs(eps), starts)
+        gnorm = np.sqrt((gq ** 2).sum(axis=1))                                                  # (B, 3)
+        # the members' own second moments: ∫ |x − c|², the sawtooth's sum Σ J_i and its remainder weight
+        tr_i = np.trace(sec_p[mem], axis1=1, axis2=2)
+        dcn = np.sqrt((dc ** 2).sum(axis=1))
+        inertia = np.add.reduceat(tr_i + ap * dcn**2, starts)
+        jsum = np.add.reduceat(sec_p[mem], starts)                                              # (B, 3, 3)
+        saw = np.add.reduceat(tr_i * (dcn + 0.5 * rho_p[mem]), starts)
+        # orthogonality defects as computed, plus their rounding
+        lab = np.add.reduceat(ap[:, None] * np.abs(L), starts)
+        i0 = np.add.reduceat(ap[:, None] * eps, starts)
+        i1 = np.add.reduceat(ap[:, None, None] * dc[:, :, None] * eps[:, None, :], starts)
+        scale1 = np.add.reduceat(ap[:, None] * np.abs(L) * dcn[:, None], starts)
+        d0 = np.abs(i0) + 1e-12 * lab
+        d1 = np.sqrt((i1 ** 2).sum(axis=1)) + 1e-12 * scale1
+        lmax = np.abs(a0) + gnorm * np.hypot(hi1 - lo1, hi2 - lo2)[:, None]
+        fit_good[part] = good & np.isfinite(res).all(axis=1) & np.isfinite(gnorm).all(axis=1)
+        e1p, e2p = e1[part], e2[part]
+        out.normal[part] = nrm[part]
+        out.centre[part] = ref[part] + cq[:, :1] * e1p + cq[:, 1:] * e2p
+        out.value[part] = a0
+        out.grad[part] = e1p[:, :, None] * gq[:, None, 0, :] + e2p[:, :, None] * gq[:, None, 1, :]
+        out.resid[part] = res
+        out.gnorm[part] = gnorm
+        out.inertia[part] = inertia
+        out.jsum[part] = jsum
+        out.saw[part] = saw
+        out.area[part] = A
+        out.defect0[part] = d0
+        out.defect1[part] = d1
+        out.mismatch[part] = lmax
+    # rectangles: a tile whose members fill their extent is one; a parent's are its children's, merged
+    # where two share a whole side (exact coordinates: welded vertices project identically)
+    rects: list = [None] * n_nodes
+    for t in np.flatnonzero(leaf_rect[:h.n_tiles] & fit_good[:h.n_tiles]):
+        rects[t] = [tuple(box_q[t])]
+    n_child = np.diff(h.child_ptr)
+    for v in range(h.n_tiles, n_nodes):
+        kids = h.child[h.child_ptr[v]:h.child_ptr[v + 1]]
+        if not n_child[v] or any(rects[k] is None for k in kids):
+            continue
+        slack[v] = slack[kids].sum()
+        merged = _merge_rects([r for k in kids for r in rects[k]])
+        if len(merged) <= MAX_RECTS:
+            rects[v] = merged
+    has = np.array([r is not None for r in rects], dtype=bool) & fit_good
+    out.ok = has
+    out.lmax = out.mismatch.copy()
+    out.mismatch *= slack[:, None]
+    counts = np.array([len(r) if (r is not None and ok) else 0 for r, ok in zip(rects, has)], dtype=np.int64)
+    out.rect_ptr = np.concatenate([[0], np.cumsum(counts)])
+    q = np.array([r for rr, ok in zip(rects, has) if ok for r in rr], dtype=np.float64).reshape(-1, 4)
+    owner = np.repeat(np.arange(n_nodes), counts)
+    c1 = np.stack([q[:, 0], q[:, 1], q[:, 1], q[:, 0]], axis=1)
+    c2 = np.stack([q[:, 2], q[:, 2], q[:, 3], q[:, 3]], axis=1)
+    out.rect = ref[owner][:, None, :] + c1[..., None] * e1[owner][:, None, :] + c2[..., None] * e2[owner][:, None, :]
+    half = 0.5 * np.maximum(q[:, 1] - q[:, 0], q[:, 3] - q[:, 2])
+    out.half_side = np.zeros(n_nodes)
+    if len(half):
+        np.maximum.at(out.half_side, owner, half)
+    return out
+
+
+def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
+    """Whether receiver ``ep`` may take node ``en``'s linear proxy, and the proxy's bound ``(fits (E,),
+    bound (E, 3))`` (inf where the node is not wholly in front of P), for (receiver, node) entries whose
+    node is wholly visible and above the horizon.
+
+    The proxy (:func:`linear_node_irradiance`) gives ``π ∫ L_lin k dA`` over the rectangle minus the
+    sawtooth term ``π g·(Σ_i J_i) ∇k(c)``, for the exact ``π Σ_i L_i ∫_i k dA``; ``k(x) = |δ| (N·u) /
+    (π |u|⁴)`` is the kernel of dF (``u = x − P``, ``δ`` P's distance from the plane). Inside member i,
+    ``L_i − L_lin(x) = ε_i − g·(x − c_i)``, so the error is, per channel,
+
+    * ``π ∫ ε k``, ε piecewise constant with ``∫ ε = ∫ ε (x − c) = 0`` (the fit's normal equations):
+      ``= π ∫ ε (k − k(c) − ∇k(c)·(x − c))``, at most ``π max|ε| ½ H I``;
+    * ``π Σ_i g·∫_i (x − c_i)(k(x) − k(c_i))`` minus the sawtooth term: Taylor about c_i to second order,
+      then ``∇k(c_i) = ∇k(c) + O(H |c_i − c|)``: at most ``π |g| H Σ_i tr J_i (|c_i − c| + ρ_i / 2)``;
+
+    with ``H = 28 |δ| / (π r_min⁵)`` a bound on k's Hessian over the node's bounding sphere (every
+    segment used stays in it; ``r_min`` its distance from P): for unit v, ``|u|⁵ vᵀ ∇²((N·u)|u|^-4) v
+    = −8 (N·v)(û·v) − 4 cosθ + 24 cosθ (û·v)²``, at most ``8 + 20 = 28`` in magnitude; and
+    the rounding of the fit (``k <= |δ| / (π r³)``, ``|∇k| <= 3 |δ| / (π r⁴)`` at c) and the
+    rectangle's area beyond the members':
+
+        |error| <= |δ| (14 max|ε| I / r_min⁵ + 28 |g| saw / r_min⁵ + defect0 / r_c³ + 3 defect1 / r_c⁴
+                        + mismatch / r_min³) + the rule's error (:func:`_quadrature_bound`)
+
+    (``r_c = |c − P|``). The proxy is taken when this is at most the tolerance times a lower bound of the
+    node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the box's lowest
+    corner above P's horizon, ``r_max`` the sphere's farthest point) and ``A k(c) − 14 |δ| I / (π
+    r_min⁵)`` (Taylor about the centroid). The proxies a receiver takes see disjoint parts of its
+    hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
+    """
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
+    ok = fit.ok[en]
+    pts = points[ep]
+    rel = h.centers[en] - pts
+    rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+    rmin = rs - h.radii[en]
+    rmax = rs + h.radii[en]
+    cu = fit.centre[en] - pts
+    rc = np.sqrt(np.einsum("ij,ij->i", cu, cu))
+    delta = np.abs(np.einsum("ij,ij->i", fit.normal[en], cu))
+    hmin = np.matmul(h.corners[en] - pts[:, None, :], normals[ep][:, :, None])[..., 0].min(axis=1)
+    ok &= (rmin > 0) & (hmin > 0) & (delta > 0)
+    geo = ok.copy()
+    rmin = np.where(ok, rmin, 1.0)
+    rc = np.where(ok, rc, 1.0)
+    r5 = rmin**5
+    bound = delta[:, None] * (14.0 * fit.resid[en] * (fit.inertia[en] / r5)[:, None]
+                              + 28.0 * fit.gnorm[en] * (fit.saw[en] / r5)[:, None]
+                              + fit.defect0[en] / (rc**3)[:, None] + 3.0 * fit.defect1[en] / (rc**4)[:, None]
+                              + fit.mismatch[en] / (rmin**3)[:, None]) * (1.0 + SAFETY)
+    bound += _quadrature_bound(fit, en, delta, rmin, rmax)
+    # a lower bound of F_v: the box's lowest corner and farthest point, or k at the centroid less the
+    # Hessian's remainder (the first-order term integrates to zero about the centroid)
+    f_box = fit.area[en] * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4)
+    nu = np.einsum("ij,ij->i", normals[ep], cu)
+    f_mid = delta * (fit.area[en] * nu / rc**4 - 14.0 * fit.inertia[en] / r5) / np.pi
+    allowed = tol[None, :] * np.maximum(f_box, f_mid * (1.0 - 1e-12))[:, None]
+    ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
+    return ok, np.where(geo[:, None], bound, np.inf)
+
+
+def _quadrature_bound(fit: NodeFits, en, delta, rmin, rmax):
+    """(E, 3) bound on the error of the :data:`QUAD_NODES`² Gauss–Legendre rule of
+    :func:`linear_node_irradiance` on node ``en``'s rectangles, times π.
+
+    The integrand ``f = L_lin k`` is analytic where ``u·u ≠ 0``. Continue one coordinate into the
+    complex plane by at most ``y = r_min / 4``: real parts stay within y of the rectangle (``|Re u| >=
+    0.75 r_min``), so ``|u·u| >= |Re u|² − y² >= r_min² / 2``, ``|N·u| <= r_max + 2y``, ``|L_lin| <= lmax + 2
+    |g| y``: ``|f| <= M = (lmax + 2 |g| y) |δ| (r_max + 2y) / (π r_min⁴ / 4)``. The Bernstein ellipse of
+    a side of half-length h with semi-minor axis y has ``ρ = y/h + √(1 + (y/h)²)``; Gauss with n nodes
+    errs by at most ``(64/15) M h ρ^-2n / (ρ² − 1)`` per unit of the other side (Trefethen, ATAP Thm
+    19.3), and the tensor rule by at most ``(64/15) M A ρ^-2n / (ρ² − 1)`` over a rectangle of area A
+    (one term per direction, each side <= the largest, ``h``)."""
+    y = 0.25 * rmin
+    q = np.minimum(y / np.maximum(fit.half_side[en], 1e-300), 1e100)     # (no rectangles: not taken)
+    rho = q + np.sqrt(1.0 + q * q)
+    m = (fit.lmax[en] + 2.0 * y[:, None] * fit.gnorm[en]) * \
+        (delta * (rmax + 2.0 * y) / (0.25 * np.pi * rmin**4))[:, None]
+    area = fit.area[en] * (1.0 + 2 * RECT_FILL)
+    return np.pi * (64.0 / 15.0) * m * (area * rho ** (-2.0 * QUAD_NODES) / (rho * rho - 1.0))[:, None]
+
+
+_QX, _QW = np.polynomial.legendre.leggauss(QUAD_NODES)
+
+
+def linear_node_irradiance(fit: NodeFits, point, node, points, normals):
+    """The proxies of (receiver, node) pairs ``point, node (P,)``: ``π ∫ L_lin k dA`` over the node's
+    rectangles by a :data:`QUAD_NODES`² Gauss–Legendre rule each, minus the sawtooth term ``π g·(Σ J_i)
+    ∇k(c)`` (see :func:`linear_node_test`): ``(P, 3)``, and the rounding allowance ``(P, 3)`` (the rule's
+    own error is in :func:`_quadrature_bound`)."""
+    if not len(point):
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    p = points[point]
+    nn = normals[point]
+    cu = fit.centre[node] - p
+    delta = np.abs(np.einsum("ij,ij->i", fit.normal[node], cu))
+    # every pair's rectangles (a pair's are consecutive), QUAD_NODES² points each: x = r0 + a s1 + b s2
+    k, rid = expand(node, fit.rect_ptr, np.arange(len(fit.rect)))
+    rect = fit.rect[rid]
+    r0 = rect[:, 0] - p[k]
+    s1 = rect[:, 1] - rect[:, 0]
+    s2 = rect[:, 3] - rect[:, 0]
+    area = np.linalg.norm(np.cross(s1, s2), axis=1)
+    nk = nn[k]
+    nk_node = node[k]
+    g = fit.grad[nk_node]                                                   # (R, 3 xyz, 3 channels)
+    # L_lin and N·u are affine in (a, b): per rectangle three coefficients
+    alpha = fit.value[nk_node] + np.einsum("ri,ric->rc", r0 - cu[k], g)
+    beta = np.einsum("ri,ric->rc", s1, g)
+    gamma = np.einsum("ri,ric->rc", s2, g)
+    n0, n1, n2 = (np.einsum("ri,ri->r", v, nk) for v in (r0, s1, s2))
+    x = 0.5 * (_QX + 1.0)
+    a_, b_ = np.repeat(x, len(x))[None, :], np.tile(x, len(x))[None, :]
+    w = 0.25 * np.outer(_QW, _QW).ravel()[None, :]                          # sums to 1
+    ux = r0[:, :1] + a_ * s1[:, :1] + b_ * s2[:, :1]
+    uy = r0[:, 1:2] + a_ * s1[:, 1:2] + b_ * s2[:, 1:2]
+    uz = r0[:, 2:] + a_ * s1[:, 2:] + b_ * s2[:, 2:]
+    uu = ux * ux + uy * uy + uz * uz
+    wk = w * (n0[:, None] + a_ * n1[:, None] + b_ * n2[:, None]) / (uu * uu)   # w π k / |δ| (>= 0)
+    s0, sa, sb = wk.sum(axis=1), (wk * a_).sum(axis=1), (wk * b_).sum(axis=1)
+    scale = (area * delta[k])[:, None]
+    per = scale * (alpha * s0[:, None] + beta * sa[:, None] + gamma * sb[:, None])
+    mag = scale * s0[:, None] * (np.abs(alpha) + np.abs(beta) + np.abs(gamma))
+    first = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+    h = np.add.reduceat(per, first, axis=0)
+    mag = np.add.reduceat(mag, first, axis=0)
+    # π ∇k(c) = |δ| (N / r⁴ − 4 (N·u) u / r⁶)
+    r2 = np.einsum("ij,ij->i", cu, cu)
+    nu = np.einsum("ij,ij->i", nn, cu)
+    pgrad = delta[:, None] * (nn / (r2 * r2)[:, None] - 4.0 * (nu / (r2 * r2 * r2))[:, None] * cu)
+    saw = np.einsum("pk,pkc->pc", np.einsum("pkl,pl->pk", fit.jsum[node], pgrad), fit.grad[node])
+    return h - saw, 1e-12 * (mag + np.abs(saw))

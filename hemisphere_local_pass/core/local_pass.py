@@ -236,16 +236,17 @@ def irradiance(
     m = len(np.asarray(points).reshape(-1, 3))
     tol = _tolerance(tolerance)
     far = bool((tol > 0).any()) and not scene.linear
-    out = np.zeros((m, 9 if far else 3))
+    out = np.zeros((m, 10 if far else 3))
     with PREPARE_LOCK:  # see parallel.PREPARE_LOCK
         occ = _occluders(scene, occluders)
         if far:
-            # half the tolerance for the nearly uniform faces (proxies), half for the edges left out
+            # half the tolerance for the nearly uniform faces (proxies), half (all without proxies) for the
+            # clear nodes' linear proxies and the edges left out
             given = scene
             scene, _ = proxy_scene(given, occ, 0.5 * tol)
             if scene is not given:
                 occ = _occluders(scene, None)
-            tol = 0.5 * tol
+                tol = 0.5 * tol
         _radiance_tables(scene)  # once here, and shipped to the workers with the scene
     # the chunk's candidates are bounded by the visibility stage itself (it splits a chunk whose surviving
     # tiles hold too many), and the output is (m, 3): chunks need not shrink with the scene's size
@@ -258,9 +259,9 @@ def irradiance(
     if not return_stats:
         return h
     if not far:
-        return h, FarFieldStats(tol, np.zeros((m, 3)), np.zeros(m), np.zeros(m), np.zeros(m))
+        return h, FarFieldStats(tol, np.zeros((m, 3)), np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m))
     return h, FarFieldStats(tol, np.ascontiguousarray(out[:, 3:6]), out[:, 6].copy(), out[:, 7].copy(),
-                            out[:, 8].copy())
+                            out[:, 8].copy(), out[:, 9].copy())
 
 
 def _tolerance(tolerance) -> np.ndarray:
@@ -316,15 +317,16 @@ def _irradiance_chunk(shared, p, n, u) -> np.ndarray:
 
 
 def _irradiance_far_chunk(shared, p, n, u, tol) -> np.ndarray:
-    """One chunk of :func:`irradiance` with a tolerance: ``(m_chunk, 9)``: H, its error bound, edges skipped,
-    edges summed and clear nodes per receiver (see :class:`.far_field.FarFieldStats`)."""
+    """One chunk of :func:`irradiance` with a tolerance: ``(m_chunk, 10)``: H, its error bound, edges skipped,
+    edges summed, clear nodes and linear proxies per receiver (see :class:`.far_field.FarFieldStats`)."""
     _settle_allocator()  # also in worker processes
     scene, occ, budget = shared
     emits, rad_cols, nonnegative = _radiance_tables(scene)
     m = len(p)
-    out = np.zeros((m, 9))
+    out = np.zeros((m, 10))
     include = np.broadcast_to(emits[None, :], (m, scene.n_polygons))
-    frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=True, budget=budget, far_field=True)
+    frags, ff, clear = _visible(scene, p, n, u, occ, include, use_clear=True, budget=budget, far_field=True,
+                                far_tolerance=tol)
     lit = frags.side < 0 if not scene.double_sided else np.ones(len(ff), dtype=bool)
     w = np.where(lit, ff, 0.0)
     half = getattr(scene, "_half_range", None)
@@ -345,12 +347,13 @@ def _irradiance_far_chunk(shared, p, n, u, tol) -> np.ndarray:
         side = np.concatenate([nodes[2], pairs.side])
         lit = np.ones(len(side), dtype=bool) if scene.double_sided else side < 0
         hier = scene_hierarchy(scene, occ)
-        h, bound, skipped, summed = far_field_irradiance(scene_node_edges(scene, occ), hier, point[lit], node[lit],
-                                                         side[lit], p, n, tol)
+        h, bound, skipped, summed, linear = far_field_irradiance(scene_node_edges(scene, occ), hier, point[lit],
+                                                                 node[lit], side[lit], p, n, tol)
         out[:, :3] += h
         out[:, 3:6] += bound
         out[:, 6], out[:, 7] = skipped, summed
         out[:, 8] = np.bincount(nodes[0], minlength=m)
+        out[:, 9] = linear
     if nonnegative:
         np.maximum(out[:, :3], 0.0, out=out[:, :3])
     return out
@@ -373,4 +376,4 @@ def radiance(scene: Scene, points, normals, reflectivity, emission=0.0, **kwargs
     if stats is None:
         return out
     return out, FarFieldStats(stats.tolerance, np.abs(rho) / np.pi * stats.error_bound, stats.edges_skipped,
-                              stats.edges_summed, stats.clear_nodes)
+                              stats.edges_summed, stats.clear_nodes, stats.linear_proxies)
