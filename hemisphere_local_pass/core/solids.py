@@ -53,6 +53,13 @@ class Solids:
         edge_solid (E,), edge_a, edge_b (E, 3): the polyhedron's edges (world end points); edge_f (E,),
             edge_g (E,): the two faces (flat indices into the face arrays; -1: the hole).
         centers (n_s, 3), radii (n_s,): bounding spheres.
+        virtual (n_s,) bool or None: polytopes inside closed surfaces that are not convex
+            (:mod:`.inner_solids`): their faces are no occluders (``face_occ`` -1), their volumes are
+            used besides the surface's faces' (nothing is replaced), at the receivers ``rules`` allow.
+        cover_solid, cover_occ (C,) or None: the occluders whose table columns each solid's columns
+            join (None: its faces, ``face_solid`` / ``face_occ``).
+        rules: per solid None (a convex solid) or the receiver rules of a virtual one
+            (see :func:`.inner_solids.inner_solids`).
     """
 
     face_ptr: np.ndarray
@@ -72,10 +79,24 @@ class Solids:
     edge_g: np.ndarray
     centers: np.ndarray
     radii: np.ndarray
+    virtual: np.ndarray | None = None
+    cover_solid: np.ndarray | None = None
+    cover_occ: np.ndarray | None = None
+    rules: list | None = None
 
     @property
     def n(self) -> int:
         return len(self.face_ptr) - 1
+
+    def covers(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(solid (C,), occluder (C,))``: the occluders whose table columns each solid's columns join."""
+        if self.cover_occ is None:
+            return self.face_solid, self.face_occ
+        return self.cover_solid, self.cover_occ
+
+    def is_virtual(self) -> np.ndarray:
+        """(n_s,) bool: the solids of :mod:`.inner_solids` (used besides their surfaces' faces)."""
+        return np.zeros(self.n, dtype=bool) if self.virtual is None else self.virtual
 
     @property
     def face_solid(self) -> np.ndarray:
@@ -88,6 +109,29 @@ def no_solids() -> Solids:
     zi = np.zeros(0, dtype=np.int64)
     return Solids(np.zeros(1, dtype=np.int64), zi, z3, z3, z3, np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool),
                   z3, z3, zi, z3, z3, zi, zi, z3, np.zeros(0))
+
+
+def join_solids(a: Solids, b: Solids) -> Solids:
+    """The solids of ``a``, then those of ``b`` (face and edge indices renumbered)."""
+    if b.n == 0:
+        return a
+    if a.n == 0:
+        return b
+    nf = len(a.face_occ)
+    ca, cb = a.covers(), b.covers()
+
+    def cat(name):
+        return np.concatenate([getattr(a, name), getattr(b, name)])
+
+    return Solids(
+        np.concatenate([a.face_ptr, b.face_ptr[1:] + nf]), cat("face_occ"), cat("face_out"), cat("face_point"),
+        cat("face_center"), cat("face_tilt"), cat("face_noise"), cat("hole"), cat("hole_out"), cat("hole_point"),
+        np.concatenate([a.edge_solid, b.edge_solid + a.n]), cat("edge_a"), cat("edge_b"),
+        np.concatenate([a.edge_f, b.edge_f + nf]),
+        np.concatenate([a.edge_g, np.where(b.edge_g >= 0, b.edge_g + nf, -1)]),
+        cat("centers"), cat("radii"), np.concatenate([a.is_virtual(), b.is_virtual()]),
+        np.concatenate([ca[0], cb[0] + a.n]), np.concatenate([ca[1], cb[1]]),
+        (a.rules or [None] * a.n) + (b.rules or [None] * b.n))
 
 
 def build_solids(vertices: np.ndarray, counts: np.ndarray, normals: np.ndarray, tilt: np.ndarray,
@@ -248,6 +292,8 @@ def solid_volumes(sol: Solids, points: np.ndarray, normals: np.ndarray, limit: n
         # missing face is seen edge-on and only polygons in that plane, which P sees edge-on too,
         # could tell the difference)
         ok &= ~sol.hole[None] | (d_h > -tol_h)
+    if sol.virtual is not None and sol.virtual.any():
+        ok &= _virtual_rules(sol, points)
     # something of the solid above the receiver's horizon (else it hides nothing there)
     height_c = np.einsum("msc,mc->ms", rel_c, normals)
     ok &= height_c + sol.radii[None] > PLANE_EPS * (dist_c + sol.radii[None])
@@ -297,3 +343,23 @@ def solid_volumes(sol: Solids, points: np.ndarray, normals: np.ndarray, limit: n
     offset[plane_q, slot] = plane_o
     keep = ~drop
     return qp[keep], qs[keep], normal[keep], offset[keep]
+
+
+def _virtual_rules(sol: Solids, points: np.ndarray) -> np.ndarray:
+    """(m, n_s) bool: where a virtual solid (:mod:`.inner_solids`) may be used — the receiver strictly
+    outside the convex set around its surface (beyond one of the outer planes by 8x the plane tolerance)
+    and strictly inside its base's plane, or in an exact axis plane of the base (see that module's proof);
+    True for the other solids."""
+    ok = np.ones((len(points), sol.n), dtype=bool)
+    p_noise = COORD_EPS * np.abs(points).max(axis=1)
+    for s in np.flatnonzero(sol.virtual):
+        out_n, out_o, base, noise = sol.rules[s]
+        scale = np.linalg.norm(points - sol.centers[s], axis=1) + sol.radii[s]
+        tol = _MARGIN * (PLANE_EPS * scale + p_noise + noise)
+        use = (points @ out_n.T - out_o[None] > tol[:, None]).any(axis=1)
+        if base is not None:
+            hn, h_lo, h_hi, exact = base[:4]
+            d = points @ hn
+            use &= (d < h_lo - tol) | ((d <= h_hi) if exact else False)
+        ok[:, s] = use
+    return ok
