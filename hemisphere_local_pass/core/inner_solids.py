@@ -125,6 +125,22 @@ def _polytope(scene, corners, c_poly, a, b, n_v, pts):
     if not size > 0:
         return None
     planes_n, planes_spread = [], []
+    # normal groups (greedy, within GROUP_ANGLE of each group's first normal)
+    group = np.full(len(polys), -1)
+    poly_pos = np.searchsorted(polys, c_poly[corners])
+    cos_t = np.cos(GROUP_ANGLE)
+    while (group < 0).any():
+        i = int(np.flatnonzero(group < 0)[0])
+        sel = (group < 0) & (nrm @ nrm[i] > cos_t)
+        group[sel] = len(planes_n)
+        g_n = nrm[sel].sum(axis=0)
+        g_n /= np.linalg.norm(g_n)
+        g_pts = v_all[sel[poly_pos]]
+        tilt = float(np.linalg.norm(nrm[sel] - g_n, axis=1).max())
+        planes_n.append(g_n)
+        planes_spread.append((float((g_pts @ g_n).max() - (g_pts @ g_n).min()), tilt))
+        if len(planes_n) + (not matched.all()) > MAX_PLANES:
+            return None
     # the base: the loop of unmatched edges (one simple loop), closed by the fan from its centroid
     base = None
     if not matched.all():
@@ -142,10 +158,8 @@ def _polytope(scene, corners, c_poly, a, b, n_v, pts):
             loop.append(nxt)
         if len(loop) != len(succ):
             return None                                # several loops (holes), or a broken one
-        first = {}
-        for i, v in enumerate(a[corners].tolist()):
-            first.setdefault(v, i)
-        lp = v_all[[first[v] for v in loop]][::-1]     # the base runs the loop backwards
+        ids, first = np.unique(a[corners], return_index=True)
+        lp = v_all[first[np.searchsorted(ids, loop)]][::-1]     # the base runs the loop backwards
         centre = lp.mean(axis=0)
         newell = np.cross(lp - centre, np.roll(lp, -1, axis=0) - centre).sum(axis=0)
         if not np.linalg.norm(newell) > 0:
@@ -158,22 +172,6 @@ def _polytope(scene, corners, c_poly, a, b, n_v, pts):
             exact = True
         h_val = lp @ hn
         base = (hn, float(h_val.min()), float(h_val.max()), exact, centre, lp)
-    # normal groups (greedy, within GROUP_ANGLE of each group's first normal)
-    group = np.full(len(polys), -1)
-    cos_t = np.cos(GROUP_ANGLE)
-    while (group < 0).any():
-        i = int(np.flatnonzero(group < 0)[0])
-        sel = (group < 0) & (nrm @ nrm[i] > cos_t)
-        group[sel] = len(planes_n)
-        g_n = nrm[sel].sum(axis=0)
-        g_n /= np.linalg.norm(g_n)
-        poly_pos = np.searchsorted(polys, c_poly[corners])
-        g_pts = v_all[sel[poly_pos]]
-        tilt = float(np.linalg.norm(nrm[sel] - g_n, axis=1).max())
-        planes_n.append(g_n)
-        planes_spread.append((float((g_pts @ g_n).max() - (g_pts @ g_n).min()), tilt))
-        if len(planes_n) + (base is not None) > MAX_PLANES:
-            return None
     outer = np.array([float((v_all @ g).max()) for g in planes_n])
     inner = outer - np.array([s + 4 * t * size + INSET * size for s, t in planes_spread])
     normals = np.array(planes_n)
@@ -189,22 +187,23 @@ def _polytope(scene, corners, c_poly, a, b, n_v, pts):
     if faces is None:
         return None
     # the proof's test: every fan triangle of every polygon (and of the base) has det > 0 from K's vertices
-    tri = []
-    for p in polys:
-        v = scene.poly_vertices[p, :scene.poly_counts[p]]
-        tri.append(np.stack([np.repeat(v[:1], len(v) - 2, axis=0), v[1:-1], v[2:]], axis=1))
+    pv, pc = scene.poly_vertices[polys], scene.poly_counts[polys]
+    tp, tj = np.nonzero(np.arange(pv.shape[1] - 2)[None, :] < (pc - 2)[:, None])      # fan (v0, v_j+1, v_j+2)
+    tri = np.stack([pv[tp, 0], pv[tp, tj + 1], pv[tp, tj + 2]], axis=1)
     if base is not None:
         lp, centre = base[5], base[4]
-        tri.append(np.stack([np.repeat(centre[None], len(lp), axis=0), lp, np.roll(lp, -1, axis=0)], axis=1))
-    tri = np.concatenate(tri)                                                    # (T, 3, 3)
+        tri = np.concatenate([tri, np.stack([np.repeat(centre[None], len(lp), axis=0), lp, np.roll(lp, -1, axis=0)],
+                                            axis=1)])                              # (T, 3, 3)
     area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
-    tri = tri[area2 > 1e-14 * longest * longest]                                 # zero solid angle either way
+    fair = area2 > 1e-14 * longest * longest                                      # zero solid angle either way
+    tri, area2 = tri[fair], area2[fair]
     for y in verts:
+        # det = |cross| x (height of y above the triangle's plane): above by 1e-9 of the size (the
+        # polytope sits INSET inside), and far above the determinant's rounding
         r = tri - y
         det = np.einsum("tc,tc->t", r[:, 0], np.cross(r[:, 1], r[:, 2]))
-        bound = 64 * _EPS * np.prod(np.linalg.norm(r, axis=2), axis=1)
-        if not (det > bound).all():
+        if not (det > np.maximum(1e-9 * size * area2, 64 * _EPS * np.prod(np.linalg.norm(r, axis=2), axis=1))).all():
             return None
     noise = COORD_EPS * float(np.abs(v_all).max())
     rules = (normals[:len(planes_n)], outer[:len(planes_n)], base, noise)
