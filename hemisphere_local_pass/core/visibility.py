@@ -523,6 +523,9 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     radii = occ.vol_radii[sv.occluder]
     parts = []
     for k_idx, kq in blocks:    # tested a block at a time: only the pairs that meet are kept
+        if sv.covered is not None:                          # clusters known to be hidden need no test
+            live = ~sv.covered[k_idx]
+            k_idx, kq = k_idx[live], kq[live]
         kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, radii, sv, ax_o, half_o, ax_o,
                                    half_o)
         parts.append((k_idx[kept], kq[kept], cov))
