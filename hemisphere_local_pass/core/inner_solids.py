@@ -98,11 +98,14 @@ def inner_solids(scene, members: np.ndarray, n_o: int, *, min_occluders: int = 8
     pair = np.unique(np.stack([root[reps], members[reps]], axis=1), axis=0)
     np.add.at(occ_per, pair[:, 0], 1)
     found = []
-    for r in np.flatnonzero(occ_per >= min_occluders):
-        corners = np.flatnonzero(c_root == r)
+    tried = np.flatnonzero(occ_per >= min_occluders)
+    by_root = np.argsort(c_root, kind="stable")                 # corners grouped by component
+    lo_c, hi_c = np.searchsorted(c_root[by_root], tried), np.searchsorted(c_root[by_root], tried, side="right")
+    for s, e in zip(lo_c, hi_c):
+        corners = by_root[s:e]
         k = _polytope(scene, corners, c_poly, a, b, n_v, pts)
         if k is not None:
-            found.append((k, np.unique(members[reps[root[reps] == r]])))
+            found.append((k, np.unique(members[c_poly[corners]])))
     if not found:
         return no_solids()
     return _as_solids(found)

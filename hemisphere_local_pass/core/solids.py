@@ -349,17 +349,37 @@ def _virtual_rules(sol: Solids, points: np.ndarray) -> np.ndarray:
     """(m, n_s) bool: where a virtual solid (:mod:`.inner_solids`) may be used — the receiver strictly
     outside the convex set around its surface (beyond one of the outer planes by 8x the plane tolerance)
     and strictly inside its base's plane, or in an exact axis plane of the base (see that module's proof);
-    True for the other solids."""
+    True for the other solids. Vectorised over receivers and solids (the rules stacked once per scene)."""
     ok = np.ones((len(points), sol.n), dtype=bool)
+    vs, out_n, out_o, noise, has_base, base_n, base_lo, base_hi, exact = _rule_arrays(sol)
     p_noise = COORD_EPS * np.abs(points).max(axis=1)
-    for s in np.flatnonzero(sol.virtual):
-        out_n, out_o, base, noise = sol.rules[s]
-        scale = np.linalg.norm(points - sol.centers[s], axis=1) + sol.radii[s]
-        tol = _MARGIN * (PLANE_EPS * scale + p_noise + noise)
-        use = (points @ out_n.T - out_o[None] > tol[:, None]).any(axis=1)
-        if base is not None:
-            hn, h_lo, h_hi, exact = base[:4]
-            d = points @ hn
-            use &= (d < h_lo - tol) | ((d <= h_hi) if exact else False)
-        ok[:, s] = use
+    scale = np.linalg.norm(points[:, None] - sol.centers[vs][None], axis=2) + sol.radii[vs][None]   # (m, V)
+    tol = _MARGIN * (PLANE_EPS * scale + p_noise[:, None] + noise[None])
+    use = (np.einsum("mc,vgc->mvg", points, out_n) - out_o[None] > tol[..., None]).any(axis=2)
+    d = points @ base_n.T                                                                            # (m, V)
+    use &= ~has_base[None] | (d < base_lo[None] - tol) | (exact[None] & (d <= base_hi[None]))
+    ok[:, vs] = use
     return ok
+
+
+def _rule_arrays(sol: Solids):
+    """The virtual solids' rules as arrays (cached on ``sol``): their indices (V,), outer planes
+    ``(V, G, 3)``, offsets ``(V, G)`` (padding +inf: never outside), coordinate noise (V,), and the base:
+    present (V,), outward normal (V, 3), lowest and highest offset of its loop (V,), exact (V,)."""
+    cached = getattr(sol, "_rules_cache", None)
+    if cached is not None:
+        return cached
+    vs = np.flatnonzero(sol.virtual)
+    g = max(len(sol.rules[s][0]) for s in vs)
+    out_n = np.zeros((len(vs), g, 3))
+    out_o = np.full((len(vs), g), np.inf)
+    noise, has_base, exact = np.zeros(len(vs)), np.zeros(len(vs), dtype=bool), np.zeros(len(vs), dtype=bool)
+    base_n, base_lo, base_hi = np.zeros((len(vs), 3)), np.zeros(len(vs)), np.zeros(len(vs))
+    for i, s in enumerate(vs):
+        n_out, o_out, base, noise[i] = sol.rules[s]
+        out_n[i, :len(n_out)], out_o[i, :len(o_out)] = n_out, o_out
+        if base is not None:
+            has_base[i] = True
+            base_n[i], base_lo[i], base_hi[i], exact[i] = base[:4]
+    sol._rules_cache = (vs, out_n, out_o, noise, has_base, base_n, base_lo, base_hi, exact)
+    return sol._rules_cache
