@@ -26,9 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .depth_pairs import Bodies, DepthPairs, ball_pairs, beyond_lists, pair_flags, solid_columns
+from .inner_solids import inner_solids
 from .rowops import pack_bits, unique_rows
 from .scene import Scene, plane_uncertainty
-from .solids import Solids, build_solids, no_solids
+from .solids import Solids, build_solids, join_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
 
 __all__ = ["Occluders", "VolumePairs", "build_occluders"]
@@ -553,17 +554,21 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     # convex solids: their volumes are extra occluder columns of the tables (see :mod:`.solids`)
     sol = build_solids(verts, counts, normals, occ_tilt, occ_noise) if solids else no_solids()
     if per_pair_depth(n_o):
+        # (the per-pair relations take the convex solids only, not the inner polytopes of :mod:`.inner_solids`)
         return _occluders_per_pair(scene, step, verts, counts, normals, centers, radii, members, poly_core,
                                    occ_tilt, occ_noise, sol)
+    if solids and n:
+        # polytopes inside closed surfaces that are not convex (float32-rounded blocks), see :mod:`.inner_solids`
+        sol = join_solids(sol, inner_solids(scene, members, n_o))
     # beyond tests, independent of the receiver, for the polygons and for the occluders themselves
     o_tabs = _beyond(verts, counts, verts, normals, occ_tilt)
     o_pos, o_neg, ob_pos, ob_neg = o_tabs
-    fs = sol.face_solid
+    fs, f_occ = sol.covers()
 
-    def per_solid(table):  # (r, n_o) -> (r, n_s): any face of the solid
+    def per_solid(table):  # (r, n_o) -> (r, n_s): any face of the solid (of its surface, if virtual)
         out = np.zeros((table.shape[0], sol.n), dtype=bool)
         if sol.n:
-            np.logical_or.at(out.T, fs, table.T[sol.face_occ])
+            np.logical_or.at(out.T, fs, table.T[f_occ])
         return out
 
     def with_solids(table, solid_cols):

@@ -261,6 +261,7 @@ def _enclosures(sol, points, normals):
     on &= (cross <= 1e-14) & (np.einsum("mc,fc->mf", normals, inward) > 0)
     starts = sol.face_ptr[:-1]
     ok = np.logical_and.reduceat(inside | on, starts, axis=1) & ~sol.hole[None]      # (m, n_s)
+    ok &= ~sol.is_virtual()[None]             # inside a virtual solid, what lies between it and its surface shows
     use = inside & ok[:, fs]
     up, uf = np.nonzero(use)
     ptr = np.zeros(m + 1, dtype=np.int64)
@@ -335,7 +336,8 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
     enc = _enclosures(occ.solids, points, normals)
     face_solid = np.full(n_o, -1, dtype=np.int64)
     if occ.solids is not None and occ.solids.n:
-        face_solid[occ.solids.face_occ] = occ.solids.face_solid
+        real = occ.solids.face_occ >= 0                # (virtual solids' faces are no occluders)
+        face_solid[occ.solids.face_occ[real]] = occ.solids.face_solid[real]
     leaves_p, leaves_t, leaves_cut, leaves_k, leaf_lb, leaf_lq = [], [], [], [], [], []
     node_p, node_n, node_s = [], [], []
     visited = 0

@@ -53,6 +53,13 @@ class Solids:
         edge_solid (E,), edge_a, edge_b (E, 3): the polyhedron's edges (world end points); edge_f (E,),
             edge_g (E,): the two faces (flat indices into the face arrays; -1: the hole).
         centers (n_s, 3), radii (n_s,): bounding spheres.
+        virtual (n_s,) bool or None: polytopes inside closed surfaces that are not convex
+            (:mod:`.inner_solids`): their faces are no occluders (``face_occ`` -1), their volumes are
+            used besides the surface's faces' (nothing is replaced), at the receivers ``rules`` allow.
+        cover_solid, cover_occ (C,) or None: the occluders whose table columns each solid's columns
+            join (None: its faces, ``face_solid`` / ``face_occ``).
+        rules: per solid None (a convex solid) or the receiver rules of a virtual one
+            (see :func:`.inner_solids.inner_solids`).
     """
 
     face_ptr: np.ndarray
@@ -72,10 +79,24 @@ class Solids:
     edge_g: np.ndarray
     centers: np.ndarray
     radii: np.ndarray
+    virtual: np.ndarray | None = None
+    cover_solid: np.ndarray | None = None
+    cover_occ: np.ndarray | None = None
+    rules: list | None = None
 
     @property
     def n(self) -> int:
         return len(self.face_ptr) - 1
+
+    def covers(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(solid (C,), occluder (C,))``: the occluders whose table columns each solid's columns join."""
+        if self.cover_occ is None:
+            return self.face_solid, self.face_occ
+        return self.cover_solid, self.cover_occ
+
+    def is_virtual(self) -> np.ndarray:
+        """(n_s,) bool: the solids of :mod:`.inner_solids` (used besides their surfaces' faces)."""
+        return np.zeros(self.n, dtype=bool) if self.virtual is None else self.virtual
 
     @property
     def face_solid(self) -> np.ndarray:
@@ -88,6 +109,29 @@ def no_solids() -> Solids:
     zi = np.zeros(0, dtype=np.int64)
     return Solids(np.zeros(1, dtype=np.int64), zi, z3, z3, z3, np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool),
                   z3, z3, zi, z3, z3, zi, zi, z3, np.zeros(0))
+
+
+def join_solids(a: Solids, b: Solids) -> Solids:
+    """The solids of ``a``, then those of ``b`` (face and edge indices renumbered)."""
+    if b.n == 0:
+        return a
+    if a.n == 0:
+        return b
+    nf = len(a.face_occ)
+    ca, cb = a.covers(), b.covers()
+
+    def cat(name):
+        return np.concatenate([getattr(a, name), getattr(b, name)])
+
+    return Solids(
+        np.concatenate([a.face_ptr, b.face_ptr[1:] + nf]), cat("face_occ"), cat("face_out"), cat("face_point"),
+        cat("face_center"), cat("face_tilt"), cat("face_noise"), cat("hole"), cat("hole_out"), cat("hole_point"),
+        np.concatenate([a.edge_solid, b.edge_solid + a.n]), cat("edge_a"), cat("edge_b"),
+        np.concatenate([a.edge_f, b.edge_f + nf]),
+        np.concatenate([a.edge_g, np.where(b.edge_g >= 0, b.edge_g + nf, -1)]),
+        cat("centers"), cat("radii"), np.concatenate([a.is_virtual(), b.is_virtual()]),
+        np.concatenate([ca[0], cb[0] + a.n]), np.concatenate([ca[1], cb[1]]),
+        (a.rules or [None] * a.n) + (b.rules or [None] * b.n))
 
 
 def build_solids(vertices: np.ndarray, counts: np.ndarray, normals: np.ndarray, tilt: np.ndarray,
@@ -308,6 +352,8 @@ def solid_volumes(sol: Solids, points: np.ndarray, normals: np.ndarray, limit: n
         # missing face is seen edge-on and only polygons in that plane, which P sees edge-on too,
         # could tell the difference)
         ok &= ~sol.hole[None] | (d_h > -tol_h)
+    if sol.virtual is not None and sol.virtual.any():
+        ok &= _virtual_rules(sol, points)
     # something of the solid above the receiver's horizon (else it hides nothing there)
     height_c = np.einsum("msc,mc->ms", rel_c, normals)
     ok &= height_c + sol.radii[None] > PLANE_EPS * (dist_c + sol.radii[None])
@@ -357,3 +403,43 @@ def solid_volumes(sol: Solids, points: np.ndarray, normals: np.ndarray, limit: n
     offset[plane_q, slot] = plane_o
     keep = ~drop
     return qp[keep], qs[keep], normal[keep], offset[keep]
+
+
+def _virtual_rules(sol: Solids, points: np.ndarray) -> np.ndarray:
+    """(m, n_s) bool: where a virtual solid (:mod:`.inner_solids`) may be used — the receiver strictly
+    outside the convex set around its surface (beyond one of the outer planes by 8x the plane tolerance)
+    and strictly inside its base's plane, or in an exact axis plane of the base (see that module's proof);
+    True for the other solids. Vectorised over receivers and solids (the rules stacked once per scene)."""
+    ok = np.ones((len(points), sol.n), dtype=bool)
+    vs, out_n, out_o, noise, has_base, base_n, base_lo, base_hi, exact = _rule_arrays(sol)
+    p_noise = COORD_EPS * np.abs(points).max(axis=1)
+    scale = np.linalg.norm(points[:, None] - sol.centers[vs][None], axis=2) + sol.radii[vs][None]   # (m, V)
+    tol = _MARGIN * (PLANE_EPS * scale + p_noise[:, None] + noise[None])
+    use = (np.einsum("mc,vgc->mvg", points, out_n) - out_o[None] > tol[..., None]).any(axis=2)
+    d = points @ base_n.T                                                                            # (m, V)
+    use &= ~has_base[None] | (d < base_lo[None] - tol) | (exact[None] & (d <= base_hi[None]))
+    ok[:, vs] = use
+    return ok
+
+
+def _rule_arrays(sol: Solids):
+    """The virtual solids' rules as arrays (cached on ``sol``): their indices (V,), outer planes
+    ``(V, G, 3)``, offsets ``(V, G)`` (padding +inf: never outside), coordinate noise (V,), and the base:
+    present (V,), outward normal (V, 3), lowest and highest offset of its loop (V,), exact (V,)."""
+    cached = getattr(sol, "_rules_cache", None)
+    if cached is not None:
+        return cached
+    vs = np.flatnonzero(sol.virtual)
+    g = max(len(sol.rules[s][0]) for s in vs)
+    out_n = np.zeros((len(vs), g, 3))
+    out_o = np.full((len(vs), g), np.inf)
+    noise, has_base, exact = np.zeros(len(vs)), np.zeros(len(vs), dtype=bool), np.zeros(len(vs), dtype=bool)
+    base_n, base_lo, base_hi = np.zeros((len(vs), 3)), np.zeros(len(vs)), np.zeros(len(vs))
+    for i, s in enumerate(vs):
+        n_out, o_out, base, noise[i] = sol.rules[s]
+        out_n[i, :len(n_out)], out_o[i, :len(o_out)] = n_out, o_out
+        if base is not None:
+            has_base[i] = True
+            base_n[i], base_lo[i], base_hi[i], exact[i] = base[:4]
+    sol._rules_cache = (vs, out_n, out_o, noise, has_base, base_n, base_lo, base_hi, exact)
+    return sol._rules_cache

@@ -98,7 +98,8 @@ class ShadowVolumes:
     Instances ``0..n_face-1`` are merged faces (``occluder < n_o``, also the *clusters* of their
     member polygons), then come the convex solids' volumes (``occluder = n_o + s``, see :mod:`.solids`;
     no vertices: ``counts`` 0). ``occludes (Q,)`` is False for a face whose solid's volume is used
-    instead at that receiver (the face still is a cluster).
+    instead at that receiver (the face still is a cluster); ``covered (Q,)``, if set, marks faces whose
+    members are all hidden there (the back faces of a virtual solid's surface, see :mod:`.inner_solids`).
     """
 
     point: np.ndarray
@@ -114,6 +115,7 @@ class ShadowVolumes:
     n_base: int = -1          # instances 0..n_base-1 are full volumes; the rest their cone-only copies
     n_face: int = -1
     occludes: np.ndarray | None = None
+    covered: np.ndarray | None = None   # (n_base,) bool or None: the cluster is known to be hidden
 
     def __post_init__(self):
         if self.n_base < 0:
@@ -275,9 +277,23 @@ def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, n
         return sv
     q = len(sv.point)
     occludes = np.ones(q + n_s, dtype=bool)
+    covered = None
     b, f_occ = expand(ss, sol.face_ptr, sol.face_occ)
-    inst = table[sp[b], f_occ]
+    real = f_occ >= 0                                   # a virtual solid's faces are no occluders
+    inst = table[sp[b[real]], f_occ[real]]
     occludes[inst[inst >= 0]] = False
+    if sol.virtual is not None and sol.virtual[ss].any():
+        # a virtual solid's closed surface seen from outside: the faces P is behind are entered from
+        # inside, after a face facing P (see :mod:`.inner_solids`): their volumes are redundant
+        vs = np.flatnonzero(sol.virtual[ss])
+        cs, co = sol.covers()
+        bv, c_occ = expand(ss[vs], np.searchsorted(cs, np.arange(sol.n + 1)), co)
+        inst = table[sp[vs][bv], c_occ]
+        inst = inst[inst >= 0]
+        back = inst[sv.side[inst] > 0]
+        occludes[back] = False
+        covered = np.zeros(q + n_s, dtype=bool)
+        covered[back] = True                            # ... and what they hold is hidden
     table[sp, occ.n + ss] = q + np.arange(n_s)
     j = max(sv.normal.shape[1], s_normal.shape[1])
 
@@ -297,7 +313,7 @@ def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, n
         np.concatenate([planes(sv.offset, -1.0), planes(s_offset, -1.0)]),
         None if sv.offset_inf is None else np.concatenate([planes(sv.offset_inf, 0.0), np.zeros((n_s, j))]),
         np.concatenate([sv.near, np.linalg.norm(rel, axis=1) - sol.radii[ss]]),
-        n_face=q, occludes=occludes)
+        n_face=q, occludes=occludes, covered=covered)
 
 
 def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
@@ -322,7 +338,7 @@ def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
         twice(sv.point), twice(sv.occluder), twice(sv.side), twice(sv.verts), twice(sv.inf), twice(sv.counts),
         np.concatenate([sv.normal, normal]), np.concatenate([sv.offset, offset]),
         None if offset_inf is None else np.concatenate([sv.offset_inf, offset_inf]), twice(sv.near), len(sv.point),
-        sv.n_face, sv.occludes)
+        sv.n_face, sv.occludes, sv.covered)
 
 
 def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
@@ -510,13 +526,16 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
     radii = occ.vol_radii[sv.occluder]
     parts = []
     for k_idx, kq in blocks:    # tested a block at a time: only the pairs that meet are kept
+        if sv.covered is not None:                          # clusters known to be hidden need no test
+            live = ~sv.covered[k_idx]
+            k_idx, kq = k_idx[live], kq[live]
         kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, radii, sv, ax_o, half_o, ax_o,
                                    half_o)
         parts.append((k_idx[kept], kq[kept], cov))
     k_idx, kq, cov = (np.concatenate(a) for a in zip(*parts))
     order = np.lexsort((sv.occluder[kq], k_idx))          # the order of a scan over (k, volume)
     k_idx, kq, cov = k_idx[order], kq[order], cov[order]
-    cluster_covered = np.zeros(n_q, dtype=bool)
+    cluster_covered = np.zeros(n_q, dtype=bool) if sv.covered is None else sv.covered[:n_q].copy()
     cluster_covered[k_idx[cov]] = True
     live = ~cluster_covered[kq] & ~cov          # pairs with a non-redundant volume that cut the cluster
     k_idx, kq = k_idx[live], kq[live]

@@ -403,3 +403,51 @@ def test_instanced_collections_follow_render_visibility(hlp):
     ex = export(hlp)
     assert sorted(ex.objects) == sorted(f"{n} (instance 0 of Inst)" for n in ("Shown", "ViewportOff", "InChildVp"))
     assert src.objects["ViewportOff"].hide_viewport and child_vp.hide_viewport and not child_rn.hide_viewport
+
+
+def _block_mesh(name, n=4):
+    """A unit cube without bottom, standing on z = 0, centred on the z axis, in n x n cells per face
+    (outward quads)."""
+    g = np.linspace(-0.5, 0.5, n + 1)
+    z = np.linspace(0.0, 1.0, n + 1)
+    index, faces = {}, []
+
+    def vid(p):
+        return index.setdefault(tuple(float(c) for c in p), len(index))
+
+    for i in range(n):
+        for j in range(n):
+            faces.append([vid((g[i], g[j], 1.0)), vid((g[i + 1], g[j], 1.0)), vid((g[i + 1], g[j + 1], 1.0)),
+                          vid((g[i], g[j + 1], 1.0))])
+            for fix, sgn in ((0, -1), (0, 1), (1, -1), (1, 1)):
+                a, b = (g[i], z[j]), (g[i + 1], z[j + 1])
+                corner = [(a[0], a[1]), (b[0], a[1]), (b[0], b[1]), (a[0], b[1])]
+                pts = [(sgn * 0.5, u, w) if fix == 0 else (u, sgn * 0.5, w) for u, w in corner]
+                if (fix == 0) != (sgn > 0):
+                    pts = pts[::-1]
+                faces.append([vid(p) for p in pts])
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(list(index), [], faces)
+    me.update()
+    ob = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def test_rotation_in_the_object_transform_keeps_faces_planar(hlp, extension):
+    """Blender stores vertex coordinates as float32. A rotated, subdivided block whose rotation stays in
+    the object's transform reaches the core with planar faces (float32 local coordinates turned into
+    world space in float64): its cells merge into 5 faces and it is a convex solid. With the rotation
+    applied to the mesh (float32 world coordinates) its faces fold and do not merge; the core then finds
+    a polytope inside it instead (core/inner_solids.py)."""
+    culling = importlib.import_module(extension.__name__ + ".core.culling")
+    ob = _block_mesh("Block")
+    ob.rotation_euler = (0.0, 0.0, 0.3)
+    ob.location = (0.25, -0.5, 0.0)
+    occ = culling.build_occluders(export(hlp, missing="black").scene)
+    assert occ.n == 5 and occ.solids.n == 1 and not occ.solids.is_virtual().any()
+    bpy.context.view_layer.update()
+    ob.data.transform(ob.matrix_world)
+    ob.matrix_world.identity()
+    occ = culling.build_occluders(export(hlp, missing="black").scene)
+    assert occ.n > 5 and occ.solids.is_virtual().sum() == 1
