@@ -66,7 +66,7 @@ def replay(scene, p, n, g, H, tol, **kw):
     saved = ad.irradiance
     ad.irradiance = lookup
     try:
-        return ad.adaptive_irradiance(scene, p, n, g, tolerance=tol, **kw)
+        return ad.adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=1, **kw)
     finally:
         ad.irradiance = saved
 
