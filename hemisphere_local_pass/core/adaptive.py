@@ -65,7 +65,7 @@ the all-exact image bit for bit.
 
 from __future__ import annotations
 
-import inspect
+import concurrent.futures as cf
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -73,6 +73,7 @@ import numpy as np
 
 from .culling import _merged_faces
 from .local_pass import Cancelled, irradiance
+from .parallel import _resolve_workers, job_pool
 from .raycast import build_bvh
 from .scene import Scene
 
@@ -367,6 +368,7 @@ def adaptive_irradiance(
     *,
     tolerance: float,
     workers=None,
+    executor: cf.Executor | None = None,
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     coarse: int = DEFAULT_COARSE,
@@ -381,7 +383,11 @@ def adaptive_irradiance(
         normals: (h, w, 3) float receiver normals (normalised by the core).
         polygons: (h, w) int input polygon index each ray hit (``RayHits.source``), -1 for a miss.
         tolerance: absolute tolerance on H (W m^-2, each RGB channel); 0 evaluates every hit pixel.
-        workers: passed on to :func:`irradiance` when it accepts it (process parallelism), else ignored.
+        workers: worker processes for the exact evaluations (None: every core; 1: this process only). With
+            more than one, the pass runs every core call on one pool (:func:`.parallel.job_pool`: the
+            pool of the caller's :class:`.parallel.PoolKeeper` scope, else one started for this pass and
+            shut down at its end). The result is bit-identical for any ``workers``.
+        executor: run the exact evaluations on this executor instead (see :func:`irradiance`).
         progress: ``progress(exact_done, hit_pixels)`` after each batch of exact evaluations (the total
             is an upper bound: most pixels are never evaluated).
         cancel: checked by the core between chunks; True raises :class:`Cancelled`.
@@ -399,14 +405,35 @@ def adaptive_irradiance(
         raise ValueError(f"tolerance must be a finite number >= 0, got {tolerance!r}")
     if int(coarse) < 2:
         raise ValueError(f"coarse must be >= 2 pixels, got {coarse}")
-    h, w = g.shape
-    valid = g >= 0
     if (g >= scene.n_input).any():
         raise ValueError(f"polygons holds index {int(g.max())}, the scene has {scene.n_input} input polygons")
+    # one pool of worker processes for the whole pass (the caller's kept pool in a PoolKeeper scope),
+    # started by the first core call: the quadtree makes two core calls per level, and a pool per call
+    # would start its processes and ship the scene to them every time (docs/adaptive.md, "Workers")
+    kept = []
+
+    def executor_of_pass():
+        if executor is not None:
+            return executor
+        if not kept:
+            kept.append(job_pool(workers) if tol > 0.0 and _resolve_workers(workers) > 1 else (None, False))
+        return kept[0][0]
+
+    try:
+        return _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, cancel, int(coarse),
+                              light_ratio, anisotropic)
+    finally:
+        if kept and kept[0][1]:  # a pool of this pass (a cancel has killed it already: run_chunks does)
+            kept[0][0].shutdown(wait=True, cancel_futures=True)
+
+
+def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, cancel, coarse, light_ratio,
+                   anisotropic):
+    """The body of :func:`adaptive_irradiance` (arguments checked; ``executor_of_pass()``: the executor of
+    the core calls, or None)."""
+    h, w = g.shape
+    valid = g >= 0
     n_valid = int(valid.sum())
-    kw = {}
-    if workers is not None and "workers" in inspect.signature(irradiance).parameters:
-        kw["workers"] = workers
     H = np.zeros((h, w, 3))
     exact = np.zeros((h, w), dtype=bool)
     err = np.zeros((h, w))
@@ -421,7 +448,8 @@ def adaptive_irradiance(
         if cancel is not None and cancel():
             raise Cancelled(f"cancelled after {stats.exact_points} exact points")
         yy, xx = np.divmod(flat, w)
-        H[yy, xx] = irradiance(scene, p[yy, xx], n[yy, xx], cancel=cancel, **kw)
+        H[yy, xx] = irradiance(scene, p[yy, xx], n[yy, xx], cancel=cancel, workers=workers,
+                               executor=executor_of_pass())
         exact[yy, xx] = True
         stats.exact_points += len(flat)
         if progress is not None:

@@ -279,3 +279,37 @@ def test_all_missed():
     scene, p, n, g, ref = prepared("chequerboard")
     img, st = adaptive_irradiance(scene, p, n, np.full_like(g, -1), tolerance=0.1)
     assert not img.any() and st.exact_points == 0
+
+
+def test_workers_share_one_pool_and_give_the_same_bits(monkeypatch):
+    """With 2 workers every core call of the pass runs on one pool (the kept pool of a PoolKeeper scope
+    here: started once, whatever the number of quadtree levels), and the image is bit for bit that of
+    one worker."""
+    import hemisphere_local_pass.core.adaptive as ad
+    from hemisphere_local_pass.core.parallel import PoolKeeper
+
+    scene, p, n, g, ref = prepared("cornell")
+    tol = 1e-2 * ref[g >= 0].mean()
+    one, st1 = adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=1)
+    executors = []
+    core = ad.irradiance
+
+    def spy(*args, **kw):
+        executors.append(kw.get("executor"))
+        return core(*args, **kw)
+
+    monkeypatch.setattr(ad, "irradiance", spy)
+    keeper = PoolKeeper()
+    try:
+        with keeper.scope():
+            two, st2 = adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=2)
+        assert keeper.started == 1 and keeper.pool.n_workers == 2
+        assert len(executors) > 4 and all(e is keeper.pool for e in executors)
+    finally:
+        keeper.close()
+    assert np.array_equal(one, two) and st1.exact_points == st2.exact_points
+    # without a scope the pass starts its own pool and shuts it down at its end
+    executors.clear()
+    adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=2)
+    pools = {id(e) for e in executors}
+    assert len(pools) == 1 and executors[0] is not None and executors[0]._closed
