@@ -115,6 +115,9 @@ class Occluders:
         vol_pairs: the pairs of occ_beyond_* and occ_reach_* as sparse lists (:class:`VolumePairs`).
         depth: for scenes of many merged faces (:func:`per_pair_depth`), the depth relations per pair
             (:class:`.depth_pairs.DepthPairs`) instead of all the tables above (then None) and vol_pairs.
+        hull_cores: (n_o,) bool, the convex cores of :func:`_convex_cores`: the hull of their members,
+            which lies in the tiling but may exceed the members' union by rounding slivers (the ring
+            cells'), so such a face occludes exactly but is no exact tiling of its members (None: none).
     """
 
     vertices: np.ndarray
@@ -148,6 +151,7 @@ class Occluders:
     vol_radii: np.ndarray | None = None
     vol_pairs: VolumePairs | None = None
     depth: DepthPairs | None = None
+    hull_cores: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -553,10 +557,14 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     n_o = n_loops
     # convex solids: their volumes are extra occluder columns of the tables (see :mod:`.solids`)
     sol = build_solids(verts, counts, normals, occ_tilt, occ_noise) if solids else no_solids()
+    hull_cores = np.zeros(n_o, dtype=bool)
+    hull_cores[poly_core[poly_core >= 0]] = True
     if per_pair_depth(n_o):
         # (the per-pair relations take the convex solids only, not the inner polytopes of :mod:`.inner_solids`)
-        return _occluders_per_pair(scene, step, verts, counts, normals, centers, radii, members, poly_core,
-                                   occ_tilt, occ_noise, sol)
+        out = _occluders_per_pair(scene, step, verts, counts, normals, centers, radii, members, poly_core,
+                                  occ_tilt, occ_noise, sol)
+        out.hull_cores = hull_cores
+        return out
     if solids and n:
         # polytopes inside closed surfaces that are not convex (float32-rounded blocks), see :mod:`.inner_solids`
         sol = join_solids(sol, inner_solids(scene, members, n_o))
@@ -662,7 +670,7 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
                      front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
                      sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
-                     np.concatenate([radii, sol.radii]), pairs)
+                     np.concatenate([radii, sol.radii]), pairs, hull_cores=hull_cores)
 
 
 #: the depth relations per pair (:mod:`.depth_pairs`) instead of tables from this many merged faces on

@@ -445,13 +445,13 @@ def proxy_scene(scene, occ, tolerance):
     """The scene with every nearly uniform merged face replaced by one polygon, and its radiance bound.
 
     A merged face (:func:`.culling.build_occluders`: coplanar, edge-connected convex polygons that tile
-    one convex polygon exactly) whose members' radiance spans ``range_c <= 2 tolerance_c / π`` in every
-    channel, with no duplicate or coplanar-overlapping member, is replaced by that convex polygon with
-    the mid-range radiance. The occluding geometry is the same (the union of the members is the
-    polygon), so ``|H − H_proxy| <= π Σ_f ½ range_f F_f`` with ``F_f`` the proxy's visible form factor;
-    the visible parts of different faces do not overlap on the hemisphere (``Σ_f F_f <= 1``), so this
-    is at most ``tolerance``: the caller computes it per receiver from the proxies' visible form factors
-    and half ranges (:func:`.local_pass.irradiance` gives the proxies half its tolerance, the edges left
+    one convex polygon exactly; not a convex core, ``occ.hull_cores``) whose members' radiance spans
+    ``range_c <= 2 tolerance_c / π`` in every channel, with no duplicate or coplanar-overlapping member,
+    is replaced by that convex polygon with the mid-range radiance. The occluding geometry is the same (the
+    union of the members is the polygon), so ``|H − H_proxy| <= π Σ_f ½ range_f F_f`` with ``F_f`` the proxy's
+    visible form factor; the visible parts of different faces do not overlap on the hemisphere (``Σ_f F_f <=
+    1``), so this is at most ``tolerance``: the caller computes it per receiver from the proxies' visible form
+    factors and half ranges (:func:`.local_pass.irradiance` gives the proxies half its tolerance, the edges left
     out the other half).
 
     Returns ``(proxy scene, half_range (n_p, 3) or None)`` (``scene`` itself and None when no face
@@ -463,6 +463,10 @@ def proxy_scene(scene, occ, tolerance):
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
     lo, hi, size, dirty = _face_ranges(scene, occ)
     ok = (size >= 2) & ~dirty & ((hi - lo) * (0.5 * np.pi) <= tol[None, :]).all(axis=1) & np.isfinite(hi).all(axis=1)
+    if occ.hull_cores is not None:
+        # a convex core (float32-rounded tilings) may exceed its members' union by slivers of the ring cells:
+        # as an emitter it would count them twice, outside the bound
+        ok &= ~occ.hull_cores
     if not ok.any():
         return scene, None
     key = ok.tobytes()

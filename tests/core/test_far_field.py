@@ -15,6 +15,8 @@ end on a box whose radiance differs on every polygon.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -307,3 +309,30 @@ def test_smooth_radiance_box_takes_linear_proxies_within_the_bound(rel_tol):
     nrm = np.concatenate([nrm, nrm[:20]])
     h, exact, st = _check(scene, pts, nrm, rel_tol=rel_tol)
     assert st.linear_proxies.sum() > 100
+
+
+def test_float32_convex_cores_are_no_proxies():
+    """Rounded to float32 the rotated blocks' faces get convex cores (the hull of their interior cells,
+    which may exceed the cells' union by rounding slivers of the ring cells): such a face occludes exactly
+    but is no exact tiling, so it must not become a uniform proxy (its slivers would emit twice, outside the
+    bound); the faces that do tile exactly still do, and the bound holds."""
+    from hemisphere_local_pass.core.culling import build_occluders
+    from hemisphere_local_pass.core.far_field import proxy_scene
+
+    box = cornell_box(15, block_detail=1.05)               # block faces of 5 x 5 cells: 3 x 3 inside
+    rad = np.zeros((box.n_polygons, 3))
+    names = np.array(box.names)
+    for k, part in enumerate(dict.fromkeys(box.names)):     # one radiance per part: every face is uniform
+        rad[names == part] = 0.1 + 0.05 * k
+    rad += box.emission
+    sc = Scene.from_polygons(box.vertices.astype(np.float32).astype(np.float64), box.polygons, rad)
+    occ = build_occluders(sc)
+    assert occ.hull_cores.any()
+    sp, half = proxy_scene(sc, occ, np.full(3, 1.0))
+    assert half is not None and sp.n_polygons < sc.n_polygons        # the exact tilings became proxies
+    loose = proxy_scene(sc, dataclasses.replace(occ, hull_cores=None), np.full(3, 1.0))[0]
+    assert loose.n_polygons < sp.n_polygons                         # ... and the cores would have
+    rng = np.random.default_rng(8)
+    pick = rng.choice(sc.n_polygons, 96)
+    pts = sc.poly_centers[pick] + 1e-6 * sc.poly_normals[pick]
+    _check(sc, pts, sc.poly_normals[pick], rel_tol=1e-3)
