@@ -44,8 +44,12 @@ def adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance, pr
     ``core.Cancelled``.
     """
     from ..core import Cancelled
+    from ..core.parallel import job_pool
 
     total = int(hit.sum())
+    # the pool is picked up here, in the caller's thread: a render's kept pool (PoolKeeper.scope) is
+    # thread-local, and the pass's thread would otherwise start a pool per core call site
+    pool, owned = job_pool(report.workers) if report.workers > 1 else (None, False)
     stop = threading.Event()
     # waited on instead of Thread.join(timeout): on Python 3.11 a KeyboardInterrupt inside join()
     # marks the still running thread as stopped (threading's bpo-45274 handler), so the next join()
@@ -56,7 +60,7 @@ def adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance, pr
     def work():
         try:
             state["result"] = _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, state,
-                                             stop.is_set)
+                                             stop.is_set, pool)
         except BaseException as exc:  # raised again in the caller's thread
             state["error"] = exc
         finally:
@@ -79,8 +83,13 @@ def adaptive_pixels(core_scene, pts, normals, src, hit, shape, k2, tolerance, pr
                 raise Cancelled("local pass cancelled")
     except BaseException:
         stop.set()
+        if pool is not None:
+            pool.kill(reap=owned)  # the running chunks stop now (a kept pool's owner reaps it)
         _wait(finished)
         raise
+    finally:
+        if pool is not None and owned and finished.is_set():
+            pool.shutdown(wait=True)
     thread.join()  # it has finished: only its end is left
     if state["error"] is not None:
         raise state["error"]
@@ -102,9 +111,10 @@ def _wait(finished):
             continue
 
 
-def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, state, cancel):
+def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, state, cancel, pool=None):
     """The core calls of :func:`adaptive_pixels` (in its thread): ``state["done"]`` follows the exact
-    evaluations; ``cancel`` is the thread's stop event. Returns ``(H, exact, error, exact points,
+    evaluations; ``cancel`` is the thread's stop event; ``pool`` the job's worker pool (None: this process
+    only). Returns ``(H, exact, error, exact points,
     absolute tolerance, largest error estimate)``."""
     from ..core import irradiance
     from ..core.adaptive import DEFAULT_COARSE, adaptive_irradiance
@@ -117,11 +127,13 @@ def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, sta
     p_all, n_all, g_all = p_all.reshape(h, w, k2, 3), n_all.reshape(h, w, k2, 3), g_all.reshape(h, w, k2)
     ys = np.unique(np.r_[np.arange(0, h, DEFAULT_COARSE), h - 1])
     xs = np.unique(np.r_[np.arange(0, w, DEFAULT_COARSE), w - 1])
+    on = {"workers": 1} if pool is None else {"executor": pool}  # the same bits either way
     probe = (g_all[ys[:, None], xs[None, :], 0] >= 0)
     py, px = np.nonzero(probe)
     mean = 0.0
     if len(py):
-        mean = float(irradiance(core_scene, p_all[ys[py], xs[px], 0], n_all[ys[py], xs[px], 0], cancel=cancel).mean())
+        mean = float(irradiance(core_scene, p_all[ys[py], xs[px], 0], n_all[ys[py], xs[px], 0], cancel=cancel,
+                                **on).mean())
     absolute = tolerance * mean
     out_h = np.zeros((h, w, k2, 3))
     exact = np.zeros((h, w, k2))
@@ -132,7 +144,7 @@ def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, sta
             state["done"] = base + d
 
         hj, st = adaptive_irradiance(core_scene, p_all[:, :, j], n_all[:, :, j], g_all[:, :, j],
-                                     tolerance=absolute, progress=prog, cancel=cancel)
+                                     tolerance=absolute, progress=prog, cancel=cancel, **on)
         out_h[:, :, j], exact[:, :, j], err[:, :, j] = hj, st.exact_mask, st.pixel_error
         base += st.exact_points
     sel = hit.reshape(h, w, k2)

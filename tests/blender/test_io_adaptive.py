@@ -65,7 +65,19 @@ def test_adaptive_with_supersampling(hlp, tmp_path):
     sample_module().build(2, resolution=20, domain="FACE", reset=False)
     job = hlp["job"]
     exact = job.run_local_pass(output=str(tmp_path / "e.exr"), preview=False, samples=2)
-    rep = job.run_local_pass(output=str(tmp_path / "a.exr"), preview=False, samples=2, tolerance=1e-2)
+    rep = job.run_local_pass(output=str(tmp_path / "a.exr"), preview=False, samples=2, tolerance=1e-2, workers=1)
     assert np.abs(rep.result["irradiance"] - exact.result["irradiance"]).max() <= rep.tolerance
     frac = rep.result["exact_sample"]
     assert set(np.unique(frac)) <= {0.0, 0.25, 0.5, 0.75, 1.0} and rep.exact_points == int(round(frac.sum() * 4))
+    # on 2 workers in a render's kept pool (PoolKeeper.scope): the job's one pool serves the mean probe and
+    # all four sub-sample passes (the pass runs in a thread of its own), and the bits are the same
+    parallel = importlib.import_module(job.__name__.rsplit(".", 2)[0] + ".core.parallel")
+    keeper = parallel.PoolKeeper()
+    try:
+        with keeper.scope():
+            rep2 = job.run_local_pass(output=str(tmp_path / "a2.exr"), preview=False, samples=2, tolerance=1e-2,
+                                      workers=2)
+    finally:
+        keeper.close()
+    assert keeper.started == 1 and rep2.workers == 2
+    assert rep2.result["irradiance"].tobytes() == rep.result["irradiance"].tobytes()
