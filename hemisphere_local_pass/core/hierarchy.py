@@ -275,7 +275,15 @@ def _enclosed(h: TileHierarchy, enc, face_solid, node, point, points):
     ``face_solid (n_o,)``: the solid each merged face belongs to (-1: none); a solid's own faces are
     never beyond its planes and are not tested."""
     ptr = enc[0]
-    b, u = expand(point, ptr, np.arange(ptr[-1]))
+    # entries whose receiver is enclosed only by their node's own solid have nothing to test: they are
+    # left out before the (entry, face) expansion (in a closed room, every entry of the room's walls)
+    m = len(ptr) - 1
+    n_s = int(face_solid.max()) + 2
+    own = np.bincount(np.repeat(np.arange(m), np.diff(ptr)) * n_s + enc[5] + 1, minlength=m * n_s)
+    n_own = own.reshape(m, n_s)[point, face_solid[h.face[node]] + 1]   # (E,) of them the node's solid's (-1: 0)
+    sel = np.flatnonzero(ptr[point + 1] - ptr[point] > n_own)
+    b, u = expand(point[sel], ptr, np.arange(ptr[-1]))
+    b = sel[b]
     other = face_solid[h.face[node[b]]] != enc[5][u]
     b, u = b[other], u[other]
     if not len(b):
