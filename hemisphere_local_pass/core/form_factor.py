@@ -150,10 +150,17 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
     bz = np.concatenate([az[1:], az[:1]])
     far = _far_ends(np.einsum("ikf,ikf->kf", t, t), 0)
     _, (cx, cy, cz), s, _, gamma = _edge_geometry(ax, ay, az, bx, by, bz, far)
-    ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
+    # γ/|a×b|, 0 where a×b = 0 (then γ is 0 or π: γ/∞ = 0, bitwise as a masked divide, without the mask)
+    ratio = gamma
+    ratio /= np.where(s > 0.0, s, np.inf)
     nrm = np.broadcast_to(normal, (f, 3))
-    proj = cx * nrm[:, 0] + cy * nrm[:, 1] + cz * nrm[:, 2]
-    terms = proj * ratio                                                      # (K, F)
+    cx *= nrm[:, 0]                                                           # proj = c · N, in place
+    cy *= nrm[:, 1]
+    cz *= nrm[:, 2]
+    cx += cy
+    cx += cz
+    terms = cx
+    terms *= ratio                                                            # (K, F)
     total = terms[0].copy()
     cond = np.abs(terms[0])
     for j in range(1, terms.shape[0]):

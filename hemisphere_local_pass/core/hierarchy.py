@@ -221,6 +221,19 @@ def _box_range(h: TileHierarchy, node, point, normal, offset, points):
     return centre - spread, centre + spread, xmax
 
 
+def _box_top(h: TileHierarchy, node, point, normals, points):
+    """:func:`_box_range`'s largest height and ``xmax`` for the receivers' own tangent planes (``normals``
+    (m, 3) at ``points``, offset 0), ``(E,)`` each: the same products in the same order, one column."""
+    c = take_rows(h.mid, node) - take_rows(points, point)                           # (E, 3)
+    hw = take_rows(h.half, node)
+    nrm = take_rows(normals, point)
+    top = nrm[:, 0] * c[:, 0] + nrm[:, 1] * c[:, 1] + nrm[:, 2] * c[:, 2]
+    top += np.abs(nrm[:, 0]) * hw[:, 0] + np.abs(nrm[:, 1]) * hw[:, 1] + np.abs(nrm[:, 2]) * hw[:, 2]
+    ac = np.abs(c)
+    ac += hw
+    return top, np.maximum(np.maximum(ac[:, 0], ac[:, 1]), ac[:, 2])
+
+
 def _node_tests(h: TileHierarchy, node, point, q, sv, points):
     """Per (node, volume) entry: ``(covered, outside)`` bool, decided with :data:`NODE_MARGIN` (the
     exact minimum and maximum of each plane over the box; their rounding is far below the margin)."""
@@ -361,10 +374,9 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
         # the box formula's rounding (a few ulp of the coordinates)
         live = np.flatnonzero(alive)
         if len(live):
-            _, top, xmax = _box_range(h, en[live], ep[live], normals[ep[live]][:, None, :], np.zeros((len(live), 1)),
-                                      points)
+            top, xmax = _box_top(h, en[live], ep[live], normals, points)
             near = np.maximum(dist[live] - r[live], 0.0)
-            flat = top[:, 0] <= 0.5 * PLANE_EPS * (near + h.min_radius[en[live]]) - 1e-15 * xmax
+            flat = top <= 0.5 * PLANE_EPS * (near + h.min_radius[en[live]]) - 1e-15 * xmax
             alive[live[flat]] = False
         if wanted is not None:
             alive &= wanted[en]

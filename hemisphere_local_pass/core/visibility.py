@@ -360,20 +360,30 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     n_j = sv.normal.shape[1]
     normal_flat = sv.normal.reshape(-1, 3)
     step = max(1, int(2e6 // verts.shape[1]))
+    # more (pair, plane) entries than bodies: the bodies' slot-major copy and scale once, gathered per
+    # entry (bitwise the rows' own: a gather of a transpose is the transpose of the gather)
+    per_body = inf is None and len(pr) > len(verts)
+    if per_body:
+        verts_t = np.ascontiguousarray(verts.transpose(2, 1, 0))                 # (3, K, C)
+        scale_b = max_abs_rows(verts)
     for s in range(0, len(pr), step):
         r, j = pr[s:s + step], pj[s:s + step]
         b, qj = body[keep[r]], qk[r] * n_j + j
-        v = take_rows(verts, b)                                                  # (E, K, 3)
         nrm, off = take_rows(normal_flat, qj), sv.offset.ravel()[qj]
         if inf is None:
             # padding slots repeat the last vertex, so they change neither test: no classification.
             # Slot-major (K, E): per-entry operands broadcast along the long axis (see rowops); the same
             # sums in the same order as _sides, so the clips see bitwise the same distances
-            xt = np.ascontiguousarray(v.transpose(2, 1, 0))
+            if per_body:
+                xt, scale = np.take(verts_t, b, axis=2), np.take(scale_b, b)
+            else:
+                v = take_rows(verts, b)                                          # (E, K, 3)
+                xt, scale = np.ascontiguousarray(v.transpose(2, 1, 0)), max_abs_rows(v)
             s_re = _distances_t(xt, nrm, off)                                     # (K, E)
-            side = _own_sides(xt, s_re, PLANE_EPS * (max_abs_rows(v) + np.abs(off)), off, want_eps=False)[0]
+            side = _own_sides(xt, s_re, PLANE_EPS * (scale + np.abs(off)), off, want_eps=False)[0]
             has_in, has_out = _any_t(side > 0), _any_t(side < 0)
         else:
+            v = take_rows(verts, b)                                              # (E, K, 3)
             side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
             has_in, has_out = any_rows(side > 0), any_rows(side < 0)
         outside[r[~has_in]] = True
