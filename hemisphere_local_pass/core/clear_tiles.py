@@ -184,8 +184,9 @@ def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
     n = te.edge_ptr[pairs.tile + 1] - te.edge_ptr[pairs.tile]
     b = np.repeat(np.arange(len(n)), n)
     e = np.arange(len(b)) + np.repeat(te.edge_ptr[pairs.tile] - (np.cumsum(n) - n), n)   # expand(), values = index
-    p = np.take(pairs.point, b)
-    px, py, pz = (np.take(points[:, i], p) for i in range(3))
+    # the receivers' coordinates and normals, per pair and then repeated along its edges (no gathers)
+    pp = take_rows(points, pairs.point)
+    px, py, pz = (np.repeat(pp[:, i], n) for i in range(3))
     ax, ay, az = (np.take(te.a_xyz[i], e) for i in range(3))
     ax -= px
     ay -= py
@@ -204,7 +205,8 @@ def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
     d = ax * bx + ay * by + az * bz
     ratio = np.arctan2(s, d)
     ratio /= np.where(s > 0.0, s, np.inf)                                        # 0 where a ∥ b
-    nx, ny, nz = (np.take(normals[:, i], p) for i in range(3))
+    pn = take_rows(normals, pairs.point)
+    nx, ny, nz = (np.repeat(pn[:, i], n) for i in range(3))
     cx *= nx
     cy *= ny
     cz *= nz

@@ -281,8 +281,11 @@ def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, n
     j = max(sv.normal.shape[1], s_normal.shape[1])
 
     def planes(a, fill):
-        pad = [(0, 0), (0, j - a.shape[1])] + [(0, 0)] * (a.ndim - 2)
-        return np.pad(a, pad, constant_values=fill)
+        if a.shape[1] == j:
+            return a
+        out = np.full((a.shape[0], j) + a.shape[2:], fill, dtype=a.dtype)       # np.pad, without its overhead
+        out[:, :a.shape[1]] = a
+        return out
 
     k = sv.verts.shape[1]
     rel = sol.centers[ss] - points[sp]
