@@ -327,7 +327,8 @@ def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
         sv.n_face, sv.occludes)
 
 
-def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
+def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o,
+                bodies: dict | None = None):
     """Filter (body, shadow volume) pairs; returns the kept pair indices, which of them cover the body,
     and ``planes (kept, J)`` int8: per plane of each kept pair's volume, 0 where the body cannot cross
     it, 2 where the body's vertices lie on both sides of it (it cuts the body), 1 otherwise.
@@ -338,6 +339,8 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     The exact test only looks at the planes the bounding sphere is not strictly inside of, by more
     than any vertex's on-plane tolerance (see :func:`_sphere_inside`): every vertex is inside the
     others, and so is every piece later cut from the body, so the clips skip them too.
+    ``bodies``: an empty dict kept by a caller that tests the same ``verts`` in several calls (the
+    bodies' slot-major copy is then made once).
     """
     cos_angle = np.einsum("ij,ij->i", take_rows(ax_b, body), take_rows(ax_o, q))
     cos_sum = np.cos(half_b[body] + np.minimum(half_o[q], np.pi))
@@ -365,10 +368,15 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     step = max(1, int(2e6 // verts.shape[1]))
     # more (pair, plane) entries than bodies: the bodies' slot-major copy and scale once, gathered per
     # entry (bitwise the rows' own: a gather of a transpose is the transpose of the gather)
-    per_body = inf is None and len(pr) > len(verts)
+    per_body = inf is None and (len(pr) > len(verts) or bool(bodies))
     if per_body:
-        verts_t = np.ascontiguousarray(verts.transpose(2, 1, 0))                 # (3, K, C)
-        scale_b = max_abs_rows(verts)
+        if bodies:
+            verts_t, scale_b = bodies["t"], bodies["scale"]
+        else:
+            verts_t = np.ascontiguousarray(verts.transpose(2, 1, 0))             # (3, K, C)
+            scale_b = max_abs_rows(verts)
+            if bodies is not None:
+                bodies.update(t=verts_t, scale=scale_b)
     for s in range(0, len(pr), step):
         r, j = pr[s:s + step], pj[s:s + step]
         b, qj = body[keep[r]], qk[r] * n_j + j
@@ -519,9 +527,10 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
         blocks = _cluster_pair_blocks(sv, table, occ)
     radii = occ.vol_radii[sv.occluder]
     parts = []
+    bodies = {}
     for k_idx, kq in blocks:    # tested a block at a time: only the pairs that meet are kept
         kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, radii, sv, ax_o, half_o, ax_o,
-                                   half_o)
+                                   half_o, bodies)
         parts.append((k_idx[kept], kq[kept], cov))
     k_idx, kq, cov = (np.concatenate(a) for a in zip(*parts))
     order = np.lexsort((sv.occluder[kq], k_idx))          # the order of a scan over (k, volume)
