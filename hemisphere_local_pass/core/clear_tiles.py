@@ -195,15 +195,25 @@ def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
     bx -= px
     by -= py
     bz -= pz
+    # the same products and sums in the same order as written out, into reused buffers (no temporaries)
+    tmp = np.empty_like(ax)
     ex, ey, ez = bx - ax, by - ay, bz - az
-    cx = ay * ez - az * ey                                                       # a × b as a × (b − a)
-    cy = az * ex - ax * ez
-    cz = ax * ey - ay * ex
-    s = np.sqrt(cx * cx + cy * cy + cz * cz)
+    cx = np.multiply(ay, ez)                                                     # a × b as a × (b − a)
+    cx -= np.multiply(az, ey, out=tmp)
+    cy = np.multiply(az, ex)
+    cy -= np.multiply(ax, ez, out=tmp)
+    cz = np.multiply(ax, ey)
+    cz -= np.multiply(ay, ex, out=tmp)
+    s = np.multiply(cx, cx, out=ex)                                              # |a × b|
+    s += np.multiply(cy, cy, out=tmp)
+    s += np.multiply(cz, cz, out=tmp)
+    np.sqrt(s, out=s)
     # a · b from b itself: a + (b − a) would lose the digits of a short b next to a long a (an edge
     # passing close to P), and atan2 needs them there
-    d = ax * bx + ay * by + az * bz
-    ratio = np.arctan2(s, d)
+    d = np.multiply(ax, bx, out=ey)
+    d += np.multiply(ay, by, out=tmp)
+    d += np.multiply(az, bz, out=tmp)
+    ratio = np.arctan2(s, d, out=d)
     ratio /= np.where(s > 0.0, s, np.inf)                                        # 0 where a ∥ b
     pn = take_rows(normals, pairs.point)
     nx, ny, nz = (np.repeat(pn[:, i], n) for i in range(3))
@@ -234,11 +244,14 @@ def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_s
     out = np.zeros((len(points), 3))
     lit = np.ones(len(pairs.point), dtype=bool) if double_sided else pairs.side < 0
     pairs = ClearPairs(pairs.point[lit], pairs.tile[lit], pairs.side[lit], pairs.pair[lit])   # the rest emit nothing
+    # one channel at a time (contiguous gathers; numpy's reduceat adds each segment in order, so the
+    # sums are bitwise those of the (E, 3) reduction along axis 0, ~3x faster)
+    w_cols = np.ascontiguousarray(te.weight.T) if len(pairs.point) else None
     for sub in _batches(te, pairs):
         b, e, t = _edge_terms(te, sub, points, normals)
         n_edges = np.diff(te.edge_ptr)[sub.tile]
-        w = t[:, None] * take_rows(te.weight, e)
-        per_pair = np.add.reduceat(w, np.cumsum(n_edges) - n_edges, axis=0)         # (P', 3)
+        starts = np.cumsum(n_edges) - n_edges
+        per_pair = np.stack([np.add.reduceat(t * np.take(w_cols[c], e), starts) for c in range(3)], axis=1)   # (P', 3)
         np.add.at(out, sub.point, (sub.side * _INV_2PI)[:, None] * per_pair)
     return out
 
