@@ -418,7 +418,12 @@ def _distances_t(xt: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.n
     """Signed distances ``(K, E)`` of points ``xt (3, K, E)`` (slot-major) from one plane per column,
     ``normal (E, 3) . x - offset (E,)``. Every plane test goes through here, so equal inputs give
     bitwise equal distances (the pair test's decisions are the clips' decisions)."""
-    return xt[0] * normal[:, 0] + xt[1] * normal[:, 1] + xt[2] * normal[:, 2] - offset
+    out = np.multiply(xt[0], normal[:, 0])                                       # as written out, in place
+    tmp = np.multiply(xt[1], normal[:, 1])
+    out += tmp
+    out += np.multiply(xt[2], normal[:, 2], out=tmp)
+    out -= offset
+    return out
 
 
 def _own_sides(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndarray, want_eps: bool = True,
