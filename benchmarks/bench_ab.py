@@ -11,7 +11,10 @@ and max |ΔH| (``bitwise`` when the results are equal bit for bit). ``--profile`
 seconds of the per-point stages, fastest of two profiled runs of each core.
 
     OMP_NUM_THREADS=1 python benchmarks/bench_ab.py --base dcab52e [--scenes small,large] [--repeat 5]
-        [--points 1024] [--form-factors] [--profile]
+        [--points 1024] [--form-factors] [--profile] [--image 128]
+
+``--image N`` also runs both cores once on the camera hits of an N × N image (``bench_time_vs_error.prepare``,
+preparation included in the times) and compares them.
 """
 
 from __future__ import annotations
@@ -69,6 +72,8 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--form-factors", action="store_true", help="also time form_factors")
     ap.add_argument("--profile", action="store_true", help="cProfile the stages of irradiance")
+    ap.add_argument("--image", type=int, default=0,
+                    help="also compare irradiance once at the camera hits of an N x N image (bench_time_vs_error)")
     args = ap.parse_args(argv)
     import hemisphere_local_pass.core as new
     from hemisphere_local_pass.scenes import PAPER_SETTINGS
@@ -111,6 +116,24 @@ def main(argv=None):
                     if label not in best or cum.get("irradiance", 0.0) < best[label][0].get("irradiance", 0.0):
                         best[label] = (cum, n_calls)
                 profiles.append((key, best))
+        if args.image:
+            import bench_time_vs_error
+
+            print(f"\n| scene | {args.image}² image: hit pixels | base s | this s | max abs(ΔH) |")
+            print("|---|---|---|---|---|")
+            for key in args.scenes.split(","):
+                box, lum, scene, (p, n, g), *_ = bench_time_vs_error.prepare(key, args.image)
+                hit = g.reshape(-1) >= 0
+                p, n = p.reshape(-1, 3)[hit], n.reshape(-1, 3)[hit]
+                o_scene = old_scenes.cornell_box(**bench_time_vs_error.SETTINGS[key]).scene(radiance=lum)
+                t = time.process_time()
+                h_old = old.irradiance(o_scene, p, n, workers=1)
+                t_old = time.process_time() - t
+                t = time.process_time()
+                h_new = new.irradiance(scene, p, n, workers=1)
+                t_new = time.process_time() - t
+                same = "bitwise" if np.array_equal(h_old, h_new) else f"{float(np.abs(h_old - h_new).max()):.2e}"
+                print(f"| {key} | {len(p)} | {t_old:.1f} | {t_new:.1f} | {same} |", flush=True)
         for key, best in profiles:
             print(f"\n| stage ({key}, cProfile cumulative s, {args.points} points) | base | this | ratio |")
             print("|---|---|---|---|")
