@@ -12,17 +12,18 @@ For all receivers of a chunk together (every stage vectorised over receivers):
 6. level 2: the volumes that can hide part of each candidate, nearest first
    (:func:`.visibility.occluder_pairs`); then the exact visible fragments or signed terms, and eq. 4.
 
-Memory: a chunk whose surviving tiles hold more candidate polygons than ``budget / K`` is split in
-halves (recursively), so a chunk's candidate arrays stay below ``budget × 3 × 8`` bytes however many
-receivers it has and whatever the scene size; everything else per chunk is over (receiver, merged face)
-and over the tiles that survive.
+Memory: when a chunk's surviving tiles hold more candidate polygons than ``budget / K``, its receivers
+are halved (recursively) for stages 5–6 only, so a chunk's candidate arrays stay below ``budget × 3 × 8``
+bytes however many receivers it has and whatever the scene size; stages 1–4 run once per chunk (each
+receiver's result is its own, so the halves' fragments are those of the whole); everything else per chunk
+is over (receiver, merged face) and over the tiles that survive.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .clear_tiles import ClearPairs, TileEdges, clear_pairs, tile_edges
+from .clear_tiles import TileEdges, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
 from .far_field import NodeEdges, clear_node_test, node_edges
 from .form_factor import contour_integral
@@ -218,13 +219,46 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
         pairs = clear_pairs(te, occ, cov, sv, table, points, normals, limit)
         keep[pairs.pair] = False
         clear = (pairs, te) if not far_field else (pairs, te, tiles.nodes)
-    k = scene.poly_vertices.shape[1] + 1
-    n_cand = int(np.diff(occ.tile_ptr)[tiles.tile[keep]].sum()) if len(tiles.point) else 0
-    if n_cand * k > budget and len(points) > 1:
-        return _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field,
-                      far_tolerance)
     tiles = tiles.take(keep) if not keep.all() else tiles
+    k = scene.poly_vertices.shape[1] + 1
+    per_point = np.bincount(tiles.point, weights=np.diff(occ.tile_ptr)[tiles.tile], minlength=len(points))
+    parts = []
+    for s, e in _receiver_groups(np.concatenate([[0], np.cumsum(per_point)]), 0, len(points), budget // k):
+        # the candidate stage per group of receivers (memory bound); everything before it was done once
+        lo, hi = np.searchsorted(tiles.point, (s, e))
+        cov.tiles = tiles if (lo, hi) == (0, len(tiles.point)) else tiles.take(np.arange(lo, hi))
+        parts.append(_fragments(scene, points, normals, limit, include, occ, sv, table, cov, signed))
     cov.tiles = tiles
+    if len(parts) == 1:
+        frags, ff = parts[0]
+    elif signed:
+        frags = Fragments(None, None, *(np.concatenate([getattr(f, a) for f, _ in parts])
+                                        for a in ("counts", "point", "poly", "side", "owner")))
+        ff = np.concatenate([f for _, f in parts])
+    else:
+        frags, ff = Fragments.concat([f for f, _ in parts]), np.concatenate([f for _, f in parts])
+    if reps is not None:
+        # credit each fragment to the copy that faces the receiver (then the lowest index)
+        rep = frags.poly
+        opp = scene.dup_opp[rep]
+        use_opp = (frags.side > 0) & (opp >= 0)
+        frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
+        frags.side = np.where(use_opp, -frags.side, frags.side)
+    return frags, ff, clear
+
+
+def _receiver_groups(cum, s: int, e: int, limit: int) -> list[tuple[int, int]]:
+    """Receiver ranges ``[s, e)`` halved (recursively) until each holds at most ``limit`` candidate
+    polygons (``cum``: cumulative candidates per receiver, (m+1,)), or one receiver."""
+    if (cum[e] - cum[s]) <= limit or e - s <= 1:
+        return [(s, e)]
+    h = s + (e - s) // 2
+    return _receiver_groups(cum, s, h, limit) + _receiver_groups(cum, h, e, limit)
+
+
+def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, signed):
+    """The candidate stage of :func:`visible` for the tile pairs ``cov.tiles``: ``(fragments, ff)``."""
+    tiles = cov.tiles
     cand = hemisphere_candidates(scene, points, normals, limit, include, occ, tiles)
     ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
     allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
@@ -240,45 +274,7 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
         frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
         ff = np.maximum(frags.side * contour_by_width(frags, normals, points, flat), 0.0)
-    if reps is not None:
-        # credit each fragment to the copy that faces the receiver (then the lowest index)
-        rep = frags.poly
-        opp = scene.dup_opp[rep]
-        use_opp = (frags.side > 0) & (opp >= 0)
-        frags.poly = np.where(use_opp, opp, scene.dup_same[rep])
-        frags.side = np.where(use_opp, -frags.side, frags.side)
-    return frags, ff, clear
-
-
-def _split(scene, points, normals, limit, occ, include, use_clear, budget, signed, far_field=False,
-           far_tolerance=None):
-    """:func:`visible` for the two halves of the receivers, joined (receiver indices as in the whole)."""
-    h = len(points) // 2
-    parts = []
-    for s, e in ((0, h), (h, len(points))):
-        inc = None if include is None else (include if np.asarray(include).shape[0] == 1 else include[s:e])
-        parts.append(visible(scene, points[s:e], normals[s:e], None if limit is None else limit[s:e], occ, inc,
-                             use_clear=use_clear, budget=budget, signed=signed, far_field=far_field,
-                             far_tolerance=far_tolerance))
-    (f0, ff0, c0), (f1, ff1, c1) = parts
-    f1.point = f1.point + h
-    if f0.verts is None:
-        frags = Fragments(None, None, *(np.concatenate([getattr(f0, a), getattr(f1, a)])
-                                        for a in ("counts", "point", "poly", "side", "owner")))
-    else:
-        frags = Fragments.concat([f0, f1])
-    clear = None
-    if c0 is not None or c1 is not None:
-        cs = [c for c in (c0, c1) if c is not None]
-        offs = [0 if c is c0 else h for c in cs]
-        pairs = ClearPairs(np.concatenate([c[0].point + o for c, o in zip(cs, offs)]),
-                           np.concatenate([c[0].tile for c in cs]), np.concatenate([c[0].side for c in cs]),
-                           np.concatenate([c[0].pair for c in cs]))
-        clear = (pairs, cs[0][1])
-        if far_field:
-            clear = clear + (tuple(np.concatenate([c[2][i] + (o if i == 0 else 0) for c, o in zip(cs, offs)])
-                                   for i in range(3)),)
-    return frags, np.concatenate([ff0, ff1]), clear
+    return frags, ff
 
 
 def contour_by_width(frags: Fragments, normals, points, flat=None) -> np.ndarray:

@@ -25,7 +25,7 @@ import numpy as np
 
 from .csr import expand
 from .form_factor import CANCELLATION, contour_integral
-from .rowops import unique_rows
+from .rowops import at2, take_rows, unique_rows
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["ClearPairs", "TileEdges", "clear_pairs", "clear_form_factors", "clear_irradiance", "tile_edges"]
@@ -143,7 +143,7 @@ def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> C
     uncut for certain (see the module docstring)."""
     tiles = cov.tiles
     tp, tt = tiles.point, tiles.tile
-    k = table[tp, occ.tile_occluder[tt]]                                         # (P,) cluster instance
+    k = at2(table, tp, occ.tile_occluder[tt])                                    # (P,) cluster instance
     ks = np.maximum(k, 0)
     ok = (k >= 0) & te.eligible[tt]
     if len(cov.cluster_covered):
@@ -155,19 +155,24 @@ def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> C
         ok &= ~limit.any(axis=1)[tp]
     sel = np.flatnonzero(ok)
     tp, tt = tp[sel], tt[sel]
-    corners = occ.tile_corners[tt] - points[tp][:, None, :]                      # (P, 8, 3)
-    height = np.matmul(corners, normals[tp][:, :, None])[..., 0]                 # (P, 8)
-    rel = occ.tile_centers[tt] - points[tp]
+    ptp = take_rows(points, tp)                                                  # (np.take: bitwise a[idx])
+    corners = take_rows(occ.tile_corners, tt)
+    corners -= ptp[:, None, :]                                                   # (P, 8, 3)
+    height = np.matmul(corners, take_rows(normals, tp)[:, :, None])[..., 0]      # (P, 8)
+    rel = take_rows(occ.tile_centers, tt) - ptp
     scale = np.sqrt((rel * rel).sum(axis=1)) + occ.tile_radii[tt]
-    d = (te.plane_normal[tt] * (te.plane_point[tt] - points[tp])).sum(axis=1)
+    d = (take_rows(te.plane_normal, tt) * (take_rows(te.plane_point, tt) - ptp)).sum(axis=1)
     # no member vertex below the horizon by more than half the general path's on-plane tolerance
     # (PLANE_EPS × a member's scale, which is at least the distance to the tile's nearest point):
     # the general path would not clip any member (walls rising from the receiver's floor qualify)
     near = np.maximum(scale - 2.0 * occ.tile_radii[tt], 0.0)
     # P off the plane by far more than the plane's own uncertainty and the coordinate noise
     plane_tol = ((PLANE_EPS + te.plane_tilt[tt]) * scale + te.plane_noise[tt]
-                 + COORD_EPS * np.abs(points[tp]).max(axis=1))
-    sure = (height.min(axis=1) >= -0.5 * PLANE_EPS * near) & (np.abs(d) > SIDE_MARGIN * scale + 4.0 * plane_tol)
+                 + COORD_EPS * np.abs(ptp).max(axis=1))
+    low = height[:, 0].copy()                                                    # height.min(axis=1), column by column
+    for j in range(1, height.shape[1]):
+        np.minimum(low, height[:, j], out=low)
+    sure = (low >= -0.5 * PLANE_EPS * near) & (np.abs(d) > SIDE_MARGIN * scale + 4.0 * plane_tol)
     return ClearPairs(tp[sure], tt[sure], np.sign(d[sure]), sel[sure])
 
 
@@ -176,22 +181,49 @@ def _edge_terms(te: TileEdges, pairs: ClearPairs, points, normals):
 
     Component arrays throughout (structure of arrays): the gathers and products stay contiguous.
     """
-    b, e = expand(pairs.tile, te.edge_ptr, np.arange(len(te.edge_a)))
-    p = pairs.point[b]
-    px, py, pz = (np.ascontiguousarray(points[:, i])[p] for i in range(3))
-    ax, ay, az = te.a_xyz[0][e] - px, te.a_xyz[1][e] - py, te.a_xyz[2][e] - pz
-    bx, by, bz = te.b_xyz[0][e] - px, te.b_xyz[1][e] - py, te.b_xyz[2][e] - pz
+    n = te.edge_ptr[pairs.tile + 1] - te.edge_ptr[pairs.tile]
+    b = np.repeat(np.arange(len(n)), n)
+    e = np.arange(len(b)) + np.repeat(te.edge_ptr[pairs.tile] - (np.cumsum(n) - n), n)   # expand(), values = index
+    # the receivers' coordinates and normals, per pair and then repeated along its edges (no gathers)
+    pp = take_rows(points, pairs.point)
+    px, py, pz = (np.repeat(pp[:, i], n) for i in range(3))
+    ax, ay, az = (np.take(te.a_xyz[i], e) for i in range(3))
+    ax -= px
+    ay -= py
+    az -= pz
+    bx, by, bz = (np.take(te.b_xyz[i], e) for i in range(3))
+    bx -= px
+    by -= py
+    bz -= pz
+    # the same products and sums in the same order as written out, into reused buffers (no temporaries)
+    tmp = np.empty_like(ax)
     ex, ey, ez = bx - ax, by - ay, bz - az
-    cx = ay * ez - az * ey                                                       # a × b as a × (b − a)
-    cy = az * ex - ax * ez
-    cz = ax * ey - ay * ex
-    s = np.sqrt(cx * cx + cy * cy + cz * cz)
+    cx = np.multiply(ay, ez)                                                     # a × b as a × (b − a)
+    cx -= np.multiply(az, ey, out=tmp)
+    cy = np.multiply(az, ex)
+    cy -= np.multiply(ax, ez, out=tmp)
+    cz = np.multiply(ax, ey)
+    cz -= np.multiply(ay, ex, out=tmp)
+    s = np.multiply(cx, cx, out=ex)                                              # |a × b|
+    s += np.multiply(cy, cy, out=tmp)
+    s += np.multiply(cz, cz, out=tmp)
+    np.sqrt(s, out=s)
     # a · b from b itself: a + (b − a) would lose the digits of a short b next to a long a (an edge
     # passing close to P), and atan2 needs them there
-    d = ax * bx + ay * by + az * bz
-    ratio = np.divide(np.arctan2(s, d), s, out=np.zeros_like(s), where=s > 0.0)
-    nx, ny, nz = (np.ascontiguousarray(normals[:, i])[p] for i in range(3))
-    return b, e, (cx * nx + cy * ny + cz * nz) * ratio
+    d = np.multiply(ax, bx, out=ey)
+    d += np.multiply(ay, by, out=tmp)
+    d += np.multiply(az, bz, out=tmp)
+    ratio = np.arctan2(s, d, out=d)
+    ratio /= np.where(s > 0.0, s, np.inf)                                        # 0 where a ∥ b
+    pn = take_rows(normals, pairs.point)
+    nx, ny, nz = (np.repeat(pn[:, i], n) for i in range(3))
+    cx *= nx
+    cy *= ny
+    cz *= nz
+    cx += cy
+    cx += cz
+    cx *= ratio
+    return b, e, cx
 
 
 #: edge terms per batch: keeps the fast path's temporaries (~20 arrays of this length) in cache
@@ -212,10 +244,14 @@ def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_s
     out = np.zeros((len(points), 3))
     lit = np.ones(len(pairs.point), dtype=bool) if double_sided else pairs.side < 0
     pairs = ClearPairs(pairs.point[lit], pairs.tile[lit], pairs.side[lit], pairs.pair[lit])   # the rest emit nothing
+    # one channel at a time (contiguous gathers; numpy's reduceat adds each segment in order, so the
+    # sums are bitwise those of the (E, 3) reduction along axis 0, ~3x faster)
+    w_cols = np.ascontiguousarray(te.weight.T) if len(pairs.point) else None
     for sub in _batches(te, pairs):
         b, e, t = _edge_terms(te, sub, points, normals)
         n_edges = np.diff(te.edge_ptr)[sub.tile]
-        per_pair = np.add.reduceat(t[:, None] * te.weight[e], np.cumsum(n_edges) - n_edges, axis=0)   # (P', 3)
+        starts = np.cumsum(n_edges) - n_edges
+        per_pair = np.stack([np.add.reduceat(t * np.take(w_cols[c], e), starts) for c in range(3)], axis=1)   # (P', 3)
         np.add.at(out, sub.point, (sub.side * _INV_2PI)[:, None] * per_pair)
     return out
 

@@ -97,7 +97,8 @@ def _compact(cand: np.ndarray, keep: np.ndarray, width: int, counts: np.ndarray)
     src = np.repeat(last[:, None], width, axis=1)                     # flat source slot of every output slot
     src.ravel()[row * width + (np.arange(len(flat)) - first[row])] = flat
     out = np.take(cand.reshape(-1, 3), src.ravel(), axis=0).reshape(f, width, 3)
-    out[~full] = 0.0
+    if not full.all():
+        out[~full] = 0.0
     return out, counts
 
 

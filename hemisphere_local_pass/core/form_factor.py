@@ -150,10 +150,17 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
     bz = np.concatenate([az[1:], az[:1]])
     far = _far_ends(np.einsum("ikf,ikf->kf", t, t), 0)
     _, (cx, cy, cz), s, _, gamma = _edge_geometry(ax, ay, az, bx, by, bz, far)
-    ratio = np.divide(gamma, s, out=np.zeros_like(s), where=s > 0.0)          # γ/|a×b|
+    # γ/|a×b|, 0 where a×b = 0 (then γ is 0 or π: γ/∞ = 0, bitwise as a masked divide, without the mask)
+    ratio = gamma
+    ratio /= np.where(s > 0.0, s, np.inf)
     nrm = np.broadcast_to(normal, (f, 3))
-    proj = cx * nrm[:, 0] + cy * nrm[:, 1] + cz * nrm[:, 2]
-    terms = proj * ratio                                                      # (K, F)
+    cx *= nrm[:, 0]                                                           # proj = c · N, in place
+    cy *= nrm[:, 1]
+    cz *= nrm[:, 2]
+    cx += cy
+    cx += cz
+    terms = cx
+    terms *= ratio                                                            # (K, F)
     total = terms[0].copy()
     cond = np.abs(terms[0])
     for j in range(1, terms.shape[0]):
@@ -197,17 +204,26 @@ def _edge_geometry(ax, ay, az, bx, by, bz, far=None):
     "Much nearer" is ``|b| < |a| / 4``: elsewhere the far end's rounding is at most 4 times the near
     end's, and redoing the few such edges costs less than choosing the end everywhere (+35 % on eq. 4)."""
     ex, ey, ez = bx - ax, by - ay, bz - az
-    cx = ay * ez - az * ey
-    cy = az * ex - ax * ez
-    cz = ax * ey - ay * ex
+    tmp = np.empty_like(ex)                       # the products below as written out, without temporaries
+    cx = np.multiply(ay, ez)
+    cx -= np.multiply(az, ey, out=tmp)
+    cy = np.multiply(az, ex)
+    cy -= np.multiply(ax, ez, out=tmp)
+    cz = np.multiply(ax, ey)
+    cz -= np.multiply(ay, ex, out=tmp)
     if far is not None:
         i = far
         x, y, z, dx, dy, dz = bx[i], by[i], bz[i], ex[i], ey[i], ez[i]
         cx[i] = y * dz - z * dy
         cy[i] = z * dx - x * dz
         cz[i] = x * dy - y * dx
-    s = np.sqrt(cx * cx + cy * cy + cz * cz)                                  # |a×b|
-    d = ax * bx + ay * by + az * bz                                           # a·b
+    s = np.multiply(cx, cx)                                                   # |a×b|
+    s += np.multiply(cy, cy, out=tmp)
+    s += np.multiply(cz, cz, out=tmp)
+    np.sqrt(s, out=s)
+    d = np.multiply(ax, bx)                                                   # a·b
+    d += np.multiply(ay, by, out=tmp)
+    d += np.multiply(az, bz, out=tmp)
     return (ex, ey, ez), (cx, cy, cz), s, d, np.arctan2(s, d)
 
 

@@ -221,6 +221,19 @@ def _box_range(h: TileHierarchy, node, point, normal, offset, points):
     return centre - spread, centre + spread, xmax
 
 
+def _box_top(h: TileHierarchy, node, point, normals, points):
+    """:func:`_box_range`'s largest height and ``xmax`` for the receivers' own tangent planes (``normals``
+    (m, 3) at ``points``, offset 0), ``(E,)`` each: the same products in the same order, one column."""
+    c = take_rows(h.mid, node) - take_rows(points, point)                           # (E, 3)
+    hw = take_rows(h.half, node)
+    nrm = take_rows(normals, point)
+    top = nrm[:, 0] * c[:, 0] + nrm[:, 1] * c[:, 1] + nrm[:, 2] * c[:, 2]
+    top += np.abs(nrm[:, 0]) * hw[:, 0] + np.abs(nrm[:, 1]) * hw[:, 1] + np.abs(nrm[:, 2]) * hw[:, 2]
+    ac = np.abs(c)
+    ac += hw
+    return top, np.maximum(np.maximum(ac[:, 0], ac[:, 1]), ac[:, 2])
+
+
 def _node_tests(h: TileHierarchy, node, point, q, sv, points):
     """Per (node, volume) entry: ``(covered, outside)`` bool, decided with :data:`NODE_MARGIN` (the
     exact minimum and maximum of each plane over the box; their rounding is far below the margin)."""
@@ -232,7 +245,7 @@ def _node_tests(h: TileHierarchy, node, point, q, sv, points):
 
 def _enclosures(sol, points, normals):
     """Faces of closed convex solids that enclose each receiver: ``(ptr (m+1,), out (U, 3), point (U, 3),
-    tilt (U,), noise (U,), solid (U,))`` CSR over receivers, for :func:`_enclosed`.
+    tilt (U,), noise (U,), solid (U,), solid face (U,))`` CSR over receivers, for :func:`_enclosed`.
 
     A receiver P inside a closed convex solid S (every face plane has P strictly on its inner side, or
     contains P — then P lies on that face, and the receiver's normal is the face's inward normal, so
@@ -243,7 +256,7 @@ def _enclosures(sol, points, normals):
     """
     m = len(points)
     empty = (np.zeros(m + 1, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
-             np.zeros(0, dtype=np.int64))
+             np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
     if sol is None or sol.n == 0 or m == 0 or sol.hole.all():
         return empty
     fs = sol.face_solid
@@ -267,7 +280,29 @@ def _enclosures(sol, points, normals):
     ptr = np.zeros(m + 1, dtype=np.int64)
     np.add.at(ptr, up + 1, 1)
     return (np.cumsum(ptr), sol.face_out[uf], sol.face_point[uf], sol.face_tilt[uf], sol.face_noise[uf],
-            fs[uf])
+            fs[uf], uf)
+
+
+def _root_beyond(h: TileHierarchy, sol):
+    """``(beyond (F, n_o), size (F, n_o))`` for every solid face f and merged face o: the largest signed
+    distance beyond f's plane over o's root box (world space; -inf where o has no tiles) and the size of
+    the coordinates it comes from (L1 norms); None for more than 2**22 entries. Cached on ``h``."""
+    cached = getattr(h, "_root_beyond", None)
+    if cached is not None and cached[0] is sol:
+        return cached[1]
+    n_f, n_o = len(sol.face_out), len(h.root)
+    table = None
+    if n_f * n_o <= 2**22:
+        has = h.root >= 0
+        r = np.maximum(h.root, 0)
+        mid, half = h.mid[r], h.half[r]                                                # (n_o, 3)
+        out, fpt = sol.face_out, sol.face_point                                        # (F, 3)
+        beyond = out @ mid.T - (out * fpt).sum(axis=1)[:, None] + np.abs(out) @ half.T
+        beyond[:, ~has] = -np.inf
+        size = (np.abs(mid).sum(axis=1) + np.abs(half).sum(axis=1))[None, :] + np.abs(fpt).sum(axis=1)[:, None]
+        table = (beyond, size)
+    h._root_beyond = (sol, table)
+    return table
 
 
 def _enclosed(h: TileHierarchy, enc, face_solid, node, point, points):
@@ -276,9 +311,25 @@ def _enclosed(h: TileHierarchy, enc, face_solid, node, point, points):
     ``face_solid (n_o,)``: the solid each merged face belongs to (-1: none); a solid's own faces are
     never beyond its planes and are not tested."""
     ptr = enc[0]
-    b, u = expand(point, ptr, np.arange(ptr[-1]))
+    # entries whose receiver is enclosed only by their node's own solid have nothing to test: they are
+    # left out before the (entry, face) expansion (in a closed room, every entry of the room's walls)
+    m = len(ptr) - 1
+    n_s = int(face_solid.max()) + 2
+    own = np.bincount(np.repeat(np.arange(m), np.diff(ptr)) * n_s + enc[5] + 1, minlength=m * n_s)
+    n_own = own.reshape(m, n_s)[point, face_solid[h.face[node]] + 1]   # (E,) of them the node's solid's (-1: 0)
+    sel = np.flatnonzero(ptr[point + 1] - ptr[point] > n_own)
+    b, u = expand(point[sel], ptr, np.arange(ptr[-1]))
+    b = sel[b]
     other = face_solid[h.face[node[b]]] != enc[5][u]
     b, u = b[other], u[other]
+    if len(enc) > 7 and enc[7] is not None and len(b):
+        # a node's box lies in its face's root box; where that lies inside the face plane by far more than
+        # the test's rounding (~1e-15 of the coordinates), the box's smallest distance beyond the plane
+        # is < 0 < its tolerance at any receiver: not hit, and left out before the test
+        beyond, size = enc[7]
+        flat = enc[6][u] * h.root.shape[0] + h.face[node[b]]
+        maybe = np.take(beyond, flat) + 1e-9 * (np.take(size, flat) + np.abs(points[point[b]]).sum(axis=1)) >= 0
+        b, u = b[maybe], u[maybe]
     if not len(b):
         return np.zeros(len(node), dtype=bool)
     out, fpt, tilt, noise = enc[1][u], enc[2][u], enc[3][u], enc[4][u]
@@ -334,6 +385,8 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
     e_idx = np.flatnonzero(cut)
     lb = e_idx[lb]                                  # (entry, volume) list, volumes in cluster-list order
     enc = _enclosures(occ.solids, points, normals)
+    if enc[0][-1]:
+        enc = enc + (_root_beyond(h, occ.solids),)
     face_solid = np.full(n_o, -1, dtype=np.int64)
     if occ.solids is not None and occ.solids.n:
         real = occ.solids.face_occ >= 0                # (virtual solids' faces are no occluders)
@@ -355,10 +408,9 @@ def visit_tiles(h: TileHierarchy, occ, sv, table, cov, points, normals, tile_wan
         # the box formula's rounding (a few ulp of the coordinates)
         live = np.flatnonzero(alive)
         if len(live):
-            _, top, xmax = _box_range(h, en[live], ep[live], normals[ep[live]][:, None, :], np.zeros((len(live), 1)),
-                                      points)
+            top, xmax = _box_top(h, en[live], ep[live], normals, points)
             near = np.maximum(dist[live] - r[live], 0.0)
-            flat = top[:, 0] <= 0.5 * PLANE_EPS * (near + h.min_radius[en[live]]) - 1e-15 * xmax
+            flat = top <= 0.5 * PLANE_EPS * (near + h.min_radius[en[live]]) - 1e-15 * xmax
             alive[live[flat]] = False
         if wanted is not None:
             alive &= wanted[en]

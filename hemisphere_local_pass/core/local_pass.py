@@ -5,7 +5,8 @@ polygons and fragments. A chunk holds ``budget // (n_polygons × vertex slots)``
 ``MAX_CHUNK_POINTS``, so the candidates' coordinate arrays stay below ``budget × 3 × 8`` bytes (12 MB at
 the default 2**19) whatever the scene size, and the clear tiles' edge terms go in batches of
 ``clear_tiles.EDGE_BATCH``. Both defaults were measured (9,468 polygons: 2**18 → 2**19 saves 10–20 %;
-175 polygons: chunks of 192 points instead of 744 save ~10 %; larger chunks lose cache locality).
+175 polygons: chunks of 384 points instead of 744 or 192 save 5–10 %; larger chunks lose cache locality, smaller
+ones pay numpy's per-call overhead more often).
 
 The chunks are a function of the job only (scene, receivers, budget); :mod:`.parallel` runs them in this
 process (``workers=1``), on worker processes (default: every core) or on any executor, and stores each
@@ -43,8 +44,10 @@ __all__ = ["Cancelled", "FarFieldStats", "form_factors", "irradiance", "prepare_
            "visible_fragments_with_ff"]
 
 #: at most this many receivers per chunk: small scenes' chunks then stay in cache (175 polygons: chunks
-#: of 150–220 points are ~10 % faster than of 744; the per-chunk overhead is already negligible there)
-MAX_CHUNK_POINTS = 192
+#: of 150–220 points were ~10 % faster than of 744; after session 7's cuts, 384 is 5–10 % faster than 192,
+#: CPU time interleaved: 0.246 / 0.274 ms per point fastest, 0.260 / 0.281 median of 7). Scenes of more
+#: than ~680 polygons get smaller chunks from the budget anyway.
+MAX_CHUNK_POINTS = 384
 #: irradiance chunks are sized as for a scene of at most this many polygons (see :func:`irradiance`)
 IRRADIANCE_CHUNK_POLYGONS = 682
 

@@ -170,8 +170,10 @@ def hemisphere_candidates(scene: Scene, points, normals, limit, include, occlude
                          + scene.poly_noise[ci] + point_noise[cp], limit[cp], verts)
     counts = scene.poly_counts[ci]
     nc = take_rows(normals, cp)
-    height = (verts[..., 0] * nc[:, 0:1] + verts[..., 1] * nc[:, 1:2]
-              + verts[..., 2] * nc[:, 2:3])                                     # (C, K+1) above the horizon
+    height = np.multiply(verts[..., 0], nc[:, 0:1])                             # (C, K+1) above the horizon
+    tmp = np.multiply(verts[..., 1], nc[:, 1:2])                                # (x0 n0 + x1 n1) + x2 n2, in place
+    height += tmp
+    height += np.multiply(verts[..., 2], nc[:, 2:3], out=tmp)
     # a vertex's height is rounded by ~ε|x| (the horizon is exactly the plane through P normal to N), so
     # each vertex has its own tolerance: the polygon's (PLANE_EPS × its scale) put a vertex 1.5e-11 from
     # P at height 2.9e-13 on the horizon, so the clip cut its edge at that vertex instead of 8e-13 along,

@@ -298,8 +298,11 @@ def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, n
     j = max(sv.normal.shape[1], s_normal.shape[1])
 
     def planes(a, fill):
-        pad = [(0, 0), (0, j - a.shape[1])] + [(0, 0)] * (a.ndim - 2)
-        return np.pad(a, pad, constant_values=fill)
+        if a.shape[1] == j:
+            return a
+        out = np.full((a.shape[0], j) + a.shape[2:], fill, dtype=a.dtype)       # np.pad, without its overhead
+        out[:, :a.shape[1]] = a
+        return out
 
     k = sv.verts.shape[1]
     rel = sol.centers[ss] - points[sp]
@@ -341,7 +344,8 @@ def _with_cone_only(sv: ShadowVolumes) -> ShadowVolumes:
         sv.n_face, sv.occludes, sv.covered)
 
 
-def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o):
+def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolumes, ax_b, half_b, ax_o, half_o,
+                bodies: dict | None = None):
     """Filter (body, shadow volume) pairs; returns the kept pair indices, which of them cover the body,
     and ``planes (kept, J)`` int8: per plane of each kept pair's volume, 0 where the body cannot cross
     it, 2 where the body's vertices lie on both sides of it (it cuts the body), 1 otherwise.
@@ -352,6 +356,8 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     The exact test only looks at the planes the bounding sphere is not strictly inside of, by more
     than any vertex's on-plane tolerance (see :func:`_sphere_inside`): every vertex is inside the
     others, and so is every piece later cut from the body, so the clips skip them too.
+    ``bodies``: an empty dict kept by a caller that tests the same ``verts`` in several calls (the
+    bodies' slot-major copy is then made once).
     """
     cos_angle = np.einsum("ij,ij->i", take_rows(ax_b, body), take_rows(ax_o, q))
     cos_sum = np.cos(half_b[body] + np.minimum(half_o[q], np.pi))
@@ -377,20 +383,35 @@ def _test_pairs(body, q, verts, inf, counts, center_rel, radius, sv: ShadowVolum
     n_j = sv.normal.shape[1]
     normal_flat = sv.normal.reshape(-1, 3)
     step = max(1, int(2e6 // verts.shape[1]))
+    # more (pair, plane) entries than bodies: the bodies' slot-major copy and scale once, gathered per
+    # entry (bitwise the rows' own: a gather of a transpose is the transpose of the gather)
+    per_body = inf is None and (len(pr) > len(verts) or bool(bodies))
+    if per_body:
+        if bodies:
+            verts_t, scale_b = bodies["t"], bodies["scale"]
+        else:
+            verts_t = np.ascontiguousarray(verts.transpose(2, 1, 0))             # (3, K, C)
+            scale_b = max_abs_rows(verts)
+            if bodies is not None:
+                bodies.update(t=verts_t, scale=scale_b)
     for s in range(0, len(pr), step):
         r, j = pr[s:s + step], pj[s:s + step]
         b, qj = body[keep[r]], qk[r] * n_j + j
-        v = take_rows(verts, b)                                                  # (E, K, 3)
         nrm, off = take_rows(normal_flat, qj), sv.offset.ravel()[qj]
         if inf is None:
             # padding slots repeat the last vertex, so they change neither test: no classification.
             # Slot-major (K, E): per-entry operands broadcast along the long axis (see rowops); the same
             # sums in the same order as _sides, so the clips see bitwise the same distances
-            xt = np.ascontiguousarray(v.transpose(2, 1, 0))
+            if per_body:
+                xt, scale = np.take(verts_t, b, axis=2), np.take(scale_b, b)
+            else:
+                v = take_rows(verts, b)                                          # (E, K, 3)
+                xt, scale = np.ascontiguousarray(v.transpose(2, 1, 0)), max_abs_rows(v)
             s_re = _distances_t(xt, nrm, off)                                     # (K, E)
-            side = _own_sides(xt, s_re, PLANE_EPS * (max_abs_rows(v) + np.abs(off)), off, want_eps=False)[0]
+            side = _own_sides(xt, s_re, PLANE_EPS * (scale + np.abs(off)), off, want_eps=False)[0]
             has_in, has_out = _any_t(side > 0), _any_t(side < 0)
         else:
+            v = take_rows(verts, b)                                              # (E, K, 3)
             side = _sides(v, take_rows(inf, b), counts[b], max_abs_rows(v), nrm, off, sv.offset_inf.ravel()[qj])[0]
             has_in, has_out = any_rows(side > 0), any_rows(side < 0)
         outside[r[~has_in]] = True
@@ -414,7 +435,12 @@ def _distances_t(xt: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.n
     """Signed distances ``(K, E)`` of points ``xt (3, K, E)`` (slot-major) from one plane per column,
     ``normal (E, 3) . x - offset (E,)``. Every plane test goes through here, so equal inputs give
     bitwise equal distances (the pair test's decisions are the clips' decisions)."""
-    return xt[0] * normal[:, 0] + xt[1] * normal[:, 1] + xt[2] * normal[:, 2] - offset
+    out = np.multiply(xt[0], normal[:, 0])                                       # as written out, in place
+    tmp = np.multiply(xt[1], normal[:, 1])
+    out += tmp
+    out += np.multiply(xt[2], normal[:, 2], out=tmp)
+    out -= offset
+    return out
 
 
 def _own_sides(xt: np.ndarray, s_t: np.ndarray, eps: np.ndarray, offset: np.ndarray, want_eps: bool = True,
@@ -525,12 +551,13 @@ def coverage(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points) -> Co
         blocks = _cluster_pair_blocks(sv, table, occ)
     radii = occ.vol_radii[sv.occluder]
     parts = []
+    bodies = {}
     for k_idx, kq in blocks:    # tested a block at a time: only the pairs that meet are kept
         if sv.covered is not None:                          # clusters known to be hidden need no test
             live = ~sv.covered[k_idx]
             k_idx, kq = k_idx[live], kq[live]
         kept, cov, _ = _test_pairs(k_idx, kq, sv.verts, sv.inf, sv.counts, o_rel, radii, sv, ax_o, half_o, ax_o,
-                                   half_o)
+                                   half_o, bodies)
         parts.append((k_idx[kept], kq[kept], cov))
     k_idx, kq, cov = (np.concatenate(a) for a in zip(*parts))
     order = np.lexsort((sv.occluder[kq], k_idx))          # the order of a scan over (k, volume)

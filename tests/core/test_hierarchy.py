@@ -195,27 +195,28 @@ def test_prepare_scene_progress_and_cancel():
 
 
 def test_chunks_split_to_the_budget():
-    """A chunk whose surviving tiles hold more candidates than the budget is split (memory bound): the
-    same fragments, receiver by receiver."""
+    """A chunk whose surviving tiles hold more candidates than the budget has its candidate stage run in
+    groups of receivers (memory bound): the same fragments, receiver by receiver."""
     box = cornell_box(5)
     scene = box.scene(radiance=box.emission + 0.1 * box.reflectivity)
     p, n = receivers(box, scene, m=20, seed=7)
     occ = scene_occluders(scene)
     calls = []
-    real = chunk._split
+    real = chunk._receiver_groups
 
     def spy(*a, **k):
-        calls.append(len(a[1]))
-        return real(*a, **k)
+        groups = real(*a, **k)
+        calls.append(len(groups))
+        return groups
 
     for use_clear in (True, False):
         whole = chunk.visible(scene, p, n, None, occ, None, use_clear=use_clear)
-        chunk._split = spy
+        chunk._receiver_groups = spy
         try:
             split = chunk.visible(scene, p, n, None, occ, None, use_clear=use_clear, budget=2000)
         finally:
-            chunk._split = real
-        assert calls
+            chunk._receiver_groups = real
+        assert calls and calls[-1] > 1
         for (frags, ff, _), ref in ((split, whole), (whole, whole)):
             per_point = np.bincount(frags.point, weights=ff, minlength=len(p))
             np.testing.assert_allclose(per_point, np.bincount(ref[0].point, weights=ref[1], minlength=len(p)),
