@@ -333,23 +333,18 @@ def face_tree(faces: Bodies):
 
 
 def _tree(faces: Bodies):
-    """A complete binary tree over the faces sorted by Morton code of their centres (leaves of
-    :data:`LEAF`): per level (root first) one ``(14, N)`` array per node: the box holding every
-    member's vertices (centre c, half extents h), the members' mean normal m, the range of ``m · (x - c)``
-    over their vertices and their largest distance from the axis (c, m), |h|, the members' largest
-    ``noise``; and the sorted face order."""
+    """A complete binary tree over the faces (leaves of :data:`LEAF`): the faces ordered by recursive
+    median splits of their centres along each node's longest extent, so that every node is a compact
+    patch (a Morton order's fixed-size ranges jump between distant cells: boxes and slabs many times a
+    patch's size, whose bounds keep ~n^½ nodes near a face of a curved shell); per level (root first)
+    one ``(14, N)`` array per node: the box holding every member's vertices (centre c, half extents h),
+    the members' mean normal m, the range of ``m · (x - c)`` over their vertices and their largest
+    distance from the axis (c, m), |h|, the members' largest ``noise``; and the sorted face order."""
     n = len(faces.counts)
-    lo = faces.vertices.min(axis=(0, 1))
-    ext = max(float((faces.vertices.max(axis=(0, 1)) - lo).max()), 1e-300)
-    q = np.clip(((faces.centers - lo) / ext * 1023).astype(np.int64), 0, 1023)
-    code = np.zeros(n, dtype=np.int64)
-    for bit in range(10):
-        for ax in range(3):
-            code |= ((q[:, ax] >> bit) & 1) << (3 * bit + ax)
-    order = np.argsort(code, kind="stable")
     n_leaf = max(1, -(-n // LEAF))
     depth = int(np.ceil(np.log2(n_leaf))) if n_leaf > 1 else 0
     width = (1 << depth) * LEAF
+    order = _median_order(faces.centers, width)
     slot = np.minimum(np.arange(width), n - 1)                         # pad by repeating the last face
     fv = faces.vertices[order[slot]]                                   # (width, K, 3)
     bmin, bmax = fv.min(axis=1), fv.max(axis=1)
@@ -379,6 +374,25 @@ def _tree(faces: Bodies):
             break
         size *= 2
     return levels[::-1], order
+
+
+def _median_order(centers: np.ndarray, width: int) -> np.ndarray:
+    """``(n,)`` an order of the points ``centers (n, 3)`` such that every aligned range of ``width / 2**L``
+    slots (the nodes of level L; slots from n on are padding) splits at its middle between the lower and
+    the upper half of its members along the longest extent of their box. O(n log² n) (a stable sort per
+    level), deterministic."""
+    n = len(centers)
+    order = np.arange(n)
+    size = width
+    while size > LEAF:
+        starts = np.arange(0, n, size)
+        c = centers[order]
+        ext = np.maximum.reduceat(c, starts, axis=0) - np.minimum.reduceat(c, starts, axis=0)
+        node = np.arange(n) // size
+        key = c[np.arange(n), ext.argmax(axis=1)[node]]
+        order = order[np.lexsort((key, node))]
+        size //= 2
+    return order
 
 
 def _support(node_level, node, nrm):
