@@ -333,23 +333,18 @@ def face_tree(faces: Bodies):
 
 
 def _tree(faces: Bodies):
-    """A complete binary tree over the faces sorted by Morton code of their centres (leaves of
-    :data:`LEAF`): per level (root first) one ``(14, N)`` array per node: the box holding every
-    member's vertices (centre c, half extents h), the members' mean normal m, the range of ``m · (x - c)``
-    over their vertices and their largest distance from the axis (c, m), |h|, the members' largest
-    ``noise``; and the sorted face order."""
+    """A complete binary tree over the faces (leaves of :data:`LEAF`): the faces ordered by recursive
+    median splits of their centres along each node's longest extent, so that every node is a compact
+    patch (a Morton order's fixed-size ranges jump between distant cells: boxes and slabs many times a
+    patch's size, whose bounds keep ~n^½ nodes near a face of a curved shell); per level (root first)
+    one ``(14, N)`` array per node: the box holding every member's vertices (centre c, half extents h),
+    the members' mean normal m, the range of ``m · (x - c)`` over their vertices and their largest
+    distance from the axis (c, m), |h|, the members' largest ``noise``; and the sorted face order."""
     n = len(faces.counts)
-    lo = faces.vertices.min(axis=(0, 1))
-    ext = max(float((faces.vertices.max(axis=(0, 1)) - lo).max()), 1e-300)
-    q = np.clip(((faces.centers - lo) / ext * 1023).astype(np.int64), 0, 1023)
-    code = np.zeros(n, dtype=np.int64)
-    for bit in range(10):
-        for ax in range(3):
-            code |= ((q[:, ax] >> bit) & 1) << (3 * bit + ax)
-    order = np.argsort(code, kind="stable")
     n_leaf = max(1, -(-n // LEAF))
     depth = int(np.ceil(np.log2(n_leaf))) if n_leaf > 1 else 0
     width = (1 << depth) * LEAF
+    order = _median_order(faces.centers, width)
     slot = np.minimum(np.arange(width), n - 1)                         # pad by repeating the last face
     fv = faces.vertices[order[slot]]                                   # (width, K, 3)
     bmin, bmax = fv.min(axis=1), fv.max(axis=1)
@@ -381,18 +376,43 @@ def _tree(faces: Bodies):
     return levels[::-1], order
 
 
-def _support(node_level, node, nrm):
+def _median_order(centers: np.ndarray, width: int) -> np.ndarray:
+    """``(n,)`` an order of the points ``centers (n, 3)`` such that every aligned range of ``width / 2**L``
+    slots (the nodes of level L; slots from n on are padding) splits at its middle between the lower and
+    the upper half of its members along the longest extent of their box. O(n log² n) (a stable sort per
+    level), deterministic."""
+    n = len(centers)
+    order = np.arange(n)
+    size = width
+    while size > LEAF:
+        starts = np.arange(0, n, size)
+        c = centers[order]
+        ext = np.maximum.reduceat(c, starts, axis=0) - np.minimum.reduceat(c, starts, axis=0)
+        node = np.arange(n) // size
+        key = c[np.arange(n), ext.argmax(axis=1)[node]]
+        order = order[np.lexsort((key, node))]
+        size //= 2
+    return order
+
+
+def _support(node_level, node, nrm, both: bool = False):
     """``(E,)`` an upper bound (to rounding) on ``nrm · (x - c)`` over the vertices x of the nodes (their
     box centre c), for unit ``nrm (3, E)`` (by component): the smaller of the box's and the slab's bounds.
-    Also returns ``(d_c (3, E) = c, |h| (E,))`` of the nodes for the caller."""
+    Also returns ``(d_c (3, E) = c, |h| (E,))`` of the nodes for the caller; with ``both``, first the bound
+    for ``-nrm`` too (the same bits as ``_support(node_level, node, -nrm)[0]``: negation is exact)."""
     g = node_level[-1][:, node]                       # (14, E): c, h, m, a_lo, a_hi, perp, |h|
     c, h, m = g[0:3], g[3:6], g[6:9]
     box = np.abs(nrm[0]) * h[0] + np.abs(nrm[1]) * h[1] + np.abs(nrm[2]) * h[2]
     nm = nrm[0] * m[0] + nrm[1] * m[1] + nrm[2] * m[2]
     w0, w1, w2 = nrm[0] - nm * m[0], nrm[1] - nm * m[1], nrm[2] - nm * m[2]
     w = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-    slab = np.maximum(nm * g[9], nm * g[10]) + w * g[11]
-    return np.minimum(box, slab * (1 + 1e-9) + 1e-12 * g[12]), c, g[12]
+    lo, hi = nm * g[9], nm * g[10]
+    pad = 1e-12 * g[12]
+    sup = np.minimum(box, (np.maximum(lo, hi) + w * g[11]) * (1 + 1e-9) + pad)
+    if not both:
+        return sup, c, g[12]
+    neg = np.minimum(box, (np.maximum(-lo, -hi) + w * g[11]) * (1 + 1e-9) + pad)
+    return sup, neg, c, g[12]
 
 
 def beyond_lists(faces: Bodies) -> BeyondLists:
@@ -436,14 +456,14 @@ def _beyond_block(faces: Bodies, levels, order, block, is_open):
     for lv, lvl in enumerate(levels):
         sgn = np.where(side == 0, 1.0, -1.0)
         nrm = nt[:, o] * sgn                                               # towards the side searched
-        sup, c, h_len = _support(lvl, node, nrm)
+        sup, sup_neg, c, h_len = _support(lvl, node, nrm, both=True)
         r0, r1, r2 = c[0] - o0t[0, o], c[1] - o0t[1, o], c[2] - o0t[2, o]
         d = r0 * nrm[0] + r1 * nrm[1] + r2 * nrm[2]
         reach = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) + h_len
         t = 2.0 * (tilt_c[o] * reach + lvl[0][13, node] + faces.noise[o]) + 1e-12 * reach
         keep = d + sup >= -t
         # nodes wholly beyond that side (their faces are all on the list): many such faces open it early
-        wholly = keep & (d - _support(lvl, node, -nrm)[0] > t)
+        wholly = keep & (d - sup_neg > t)
         size = LEAF << (len(levels) - 1 - lv)
         key = 2 * o + side
         many = np.bincount(key[wholly], minlength=2 * n_o) * size > OPEN_FACES

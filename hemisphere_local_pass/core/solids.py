@@ -239,8 +239,10 @@ def _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise):
     d_s = np.einsum("fsc,fc->fs", samples[None] - v0[:, None], nrm)
     behind = d_s.min(axis=1) < -_MARGIN * tol - e            # branch 1 possible (normal outward)
     ahead = d_s.max(axis=1) > _MARGIN * tol + e              # branch 2 possible (normal inward)
+    if (behind & ahead).any():       # a sample clearly on either side of a face's plane: the loop fails it
+        return None
     sign = np.where(behind, 1.0, -1.0)
-    exact = behind == ahead                                  # neither, or both (then not convex anyway)
+    exact = behind == ahead                                  # neither
     cand = np.flatnonzero(~exact)
     faces = Bodies(vertices[g], counts[g], normals[g], tilt[g])
     tree = face_tree(faces)
@@ -254,8 +256,8 @@ def _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise):
         f = cb[pe]
         d = np.einsum("pkc,pc->pk", kv - v0[f][:, None], nrm[f]) * sign[f, None]
         np.maximum.at(worst, f, d.max(axis=1, initial=-np.inf))
-    if (worst > tol + e).any():
-        return None
+        if (worst[cb] > tol[cb] + e).any():        # a face fails: not convex, whatever the other blocks say
+            return None
     exact |= worst > tol - e
     outs = np.where(sign[:, None] > 0, nrm, -nrm)
     for i in np.flatnonzero(exact):
