@@ -297,6 +297,8 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     if tolerance is not None and ne.fit is not None:
         cand = np.flatnonzero(geo & ~ok & ne.fit.ok[en])
         if len(cand):
+            cand = cand[linear_may_fit(ne.fit, h, points, ep[cand], en[cand], LINEAR_SHARE * np.asarray(tolerance))]
+        if len(cand):
             ok[cand] = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand],
                                         LINEAR_SHARE * np.asarray(tolerance))[0]
     return ok, np.sign(d)
@@ -329,6 +331,8 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         n_list = ne.ptr[node + 1] - ne.ptr[node]
         forced = ~ne.usable[node] & ne.fit.ok[node]
         cand = np.flatnonzero(ne.fit.ok[node] & ((n_list > LINEAR_EDGES) | forced))
+        # the full test only where it can pass (or the traversal already took the proxy)
+        cand = cand[forced[cand] | linear_may_fit(ne.fit, h, points, point[cand], node[cand], LINEAR_SHARE * tol)]
         fits, lb = linear_node_test(ne.fit, h, points, normals, point[cand], node[cand], LINEAR_SHARE * tol)
         take = fits | forced[cand]
         sel, lb = cand[take], lb[take]
@@ -375,7 +379,8 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     bounds_ = np.unique(np.concatenate([[0], cuts, [len(node)]]))
     mag = np.zeros((m, 3))
     vsum = np.zeros((m, 3))
-    has_v = bool((ne.weight[:, 3:] != 0).any()) if len(ne.weight) else False
+    # without proxies only W's three columns are gathered (contiguous, with their magnitudes)
+    has_v, w_cols, w_abs = _weights(ne)
     px_all = [np.ascontiguousarray(points[:, i]) for i in range(3)]
     nx_all = [np.ascontiguousarray(normals[:, i]) for i in range(3)]
     for s, e in zip(bounds_[:-1], bounds_[1:]):
@@ -395,12 +400,11 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         ratio = np.divide(np.arctan2(sn, dd), sn, out=np.zeros_like(sn), where=sn > 0.0)
         nx, ny, nz = (x[p] for x in nx_all)
         t = (cx * nx + cy * ny + cz * nz) * ratio
-        w = ne.weight[pos]
         # per pair (its edges are consecutive), then per receiver
         run = np.flatnonzero(cnt > 0)
         first = (np.cumsum(cnt) - cnt)[run]
-        per = np.add.reduceat(t[:, None] * w, first, axis=0) * side[s:e][run, None]            # (P', 6)
-        per_mag = np.add.reduceat(np.abs(t)[:, None] * np.abs(w[:, :3]), first, axis=0)
+        per = np.add.reduceat(t[:, None] * w_cols[pos], first, axis=0) * side[s:e][run, None]   # (P', 6 or 3)
+        per_mag = np.add.reduceat(np.abs(t)[:, None] * w_abs[pos], first, axis=0)
         pp = point[s:e][run]
         np.add.at(out, pp, per[:, :3])
         np.add.at(mag, pp, per_mag)
@@ -412,6 +416,17 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     bound += ROUNDING * 0.5 * mag + 0.5 * np.abs(vsum) * (1.0 + SAFETY)
     return (out + h_lin, bound + b_lin, np.bincount(point, weights=skip, minlength=m),
             np.bincount(point, weights=n_run, minlength=m), n_lin)
+
+
+def _weights(ne: NodeEdges):
+    """``(has_v, W (E, 6) or (E, 3), |W[:, :3]| (E, 3))`` for the edge sums: some edge has a proxy weight V
+    (:func:`proxy_scene`), and the weights to gather: W's three columns alone (contiguous) without; cached."""
+    cached = getattr(ne, "_w3", None)
+    if cached is None:
+        has_v = bool((ne.weight[:, 3:] != 0).any()) if len(ne.weight) else False
+        cached = (has_v, ne.weight if has_v else np.ascontiguousarray(ne.weight[:, :3]), np.abs(ne.weight[:, :3]))
+        ne._w3 = cached
+    return cached
 
 
 def _face_ranges(scene, occ):
@@ -816,6 +831,30 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
     allowed = tol[None, :] * np.maximum(f_box, f_mid * (1.0 - 1e-12))[:, None]
     ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
     return ok, np.where(geo[:, None], bound, np.inf)
+
+
+def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
+    """(E,) bool: entries that :func:`linear_node_test` could pass at ``tolerance`` (3,); False ones cannot.
+
+    A necessary condition at the cost of one distance per entry: of the test's bound, the residual and
+    sawtooth terms alone are ``|δ| K_c / r_min⁵`` (``K = 14 max|ε| I + 28 |g| saw``, per node), and the
+    form factor's lower bound is at most ``A |δ| / (π r_min³)`` (``h_min <= r_max``, ``N·u <= r_c``, and
+    ``r_c >= r_min``: the members and their centroid are in the node's bounding sphere), so passing needs
+    ``r_min² >= π K_c / (tol_c A)`` in every channel (per node, cached for the tolerance). The threshold
+    is relaxed by 1 % for its rounding: a False is certain, a True only means "run the test"."""
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
+    key = tol.tobytes()
+    cached = getattr(fit, "_reach", None)
+    if cached is None or cached[0] != key:
+        k = 14.0 * fit.resid * fit.inertia[:, None] + 28.0 * fit.gnorm * fit.saw[:, None]        # (N, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(k > 0, k / tol[None, :], 0.0).max(axis=1)                             # inf: tol_c = 0
+            r2 = np.where(fit.ok & (fit.area > 0), np.pi * q / np.where(fit.area > 0, fit.area, 1.0), np.inf)
+        cached = (key, 0.99 * np.nan_to_num(r2, nan=np.inf))
+        fit._reach = cached
+    rel = h.centers[en] - points[ep]
+    rmin = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - h.radii[en]
+    return (rmin > 0) & (rmin * rmin >= cached[1][en])
 
 
 def _quadrature_bound(fit: NodeFits, en, delta, rmin, rmax):
