@@ -69,6 +69,9 @@ ROUNDING = 2.0**-33
 SAFETY = 1e-9
 #: the node-level side test asks for this multiple of the tile-level margin (see :func:`clear_node_test`)
 NODE_SIDE_FACTOR = 4.0
+#: a clear tile that skips no edge is summed as the exact path sums it when its tile edges are at most this
+#: many times its welded list (the welded sum costs ~1.2× per edge: it also sums the terms' magnitudes)
+PLAIN_RATIO = 1.2
 
 
 @dataclass
@@ -304,13 +307,16 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     return ok, np.sign(d)
 
 
-def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, tolerance):
+def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, tolerance, te=None):
     """``H`` of the clear nodes and tiles ``(point (P,), node (P,), side (P,) ±1)`` (the lit ones) and its
     bound.
 
     Args:
         ne: the scene's :class:`NodeEdges`; h: its hierarchy (bounding spheres); point, node: the
-            pairs; points, normals: (m, 3) receivers; tolerance: (3,) absolute tolerance on H.
+            pairs; points, normals: (m, 3) receivers; tolerance: (3,) absolute tolerance on H; te: the
+            scene's :class:`.clear_tiles.TileEdges` (or None): a tile that skips no edge, has no
+            uniform-face proxy and whose welded list is not shorter than :data:`PLAIN_RATIO` of its tile
+            edges is summed over these as the exact path sums it (cheaper per edge: no magnitudes).
     Returns:
         ``H (m, 3)`` (W m^-2, the ``π ·`` of eq. 3 included), ``bound (m, 3)`` (see the module doc),
         ``skipped (m,)`` edges left out, ``summed (m,)`` edges computed and ``linear (m,)`` linear
@@ -372,15 +378,26 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     pair_bound = 0.5 * used / np.where(d > 0, d, 1.0)[:, None] * (1.0 + SAFETY)
     for c in range(3):
         bound[:, c] = np.bincount(point, weights=pair_bound[:, c], minlength=m)
-    # the remaining edges, in batches of about 2**14 terms
     n_run = n_e - skip
+    summed = np.bincount(point, weights=n_run, minlength=m)
+    skipped = np.bincount(point, weights=skip, minlength=m)
+    # without proxies only W's three columns are gathered (contiguous, with their magnitudes)
+    has_v, w_cols, w_abs, no_v = _weights(ne)
+    mag = np.zeros((m, 3))
+    if te is not None:
+        # tiles that skip nothing and whose welded list is not much shorter: the exact path's own sums
+        n_te = np.diff(te.edge_ptr)[np.minimum(node, len(te.edge_ptr) - 2)]
+        plain = (skip == 0) & (node < h.n_tiles) & no_v[node] & (n_te > 0) & (n_te <= PLAIN_RATIO * n_e)
+        if plain.any():
+            out, mag = _tile_sums(te, point[plain], node[plain], side[plain], points, normals, m)
+            summed += np.bincount(point[plain], weights=n_te[plain] - n_run[plain], minlength=m)
+            keep = ~plain
+            point, node, side, start, skip, n_run = (x[keep] for x in (point, node, side, start, skip, n_run))
+    # the remaining edges, in batches of about 2**14 terms
     ends = np.cumsum(n_run)
     cuts = np.searchsorted(ends, np.arange(2**14, ends[-1] if len(ends) else 0, 2**14), side="right")
     bounds_ = np.unique(np.concatenate([[0], cuts, [len(node)]]))
-    mag = np.zeros((m, 3))
     vsum = np.zeros((m, 3))
-    # without proxies only W's three columns are gathered (contiguous, with their magnitudes)
-    has_v, w_cols, w_abs = _weights(ne)
     px_all = [np.ascontiguousarray(points[:, i]) for i in range(3)]
     nx_all = [np.ascontiguousarray(normals[:, i]) for i in range(3)]
     for s, e in zip(bounds_[:-1], bounds_[1:]):
@@ -414,17 +431,41 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     out *= 0.5
     # the proxies' radiance bound: π Σ ½ range F over clear proxies, = ½ Σ side V t (>= 0 exactly)
     bound += ROUNDING * 0.5 * mag + 0.5 * np.abs(vsum) * (1.0 + SAFETY)
-    return (out + h_lin, bound + b_lin, np.bincount(point, weights=skip, minlength=m),
-            np.bincount(point, weights=n_run, minlength=m), n_lin)
+    return out + h_lin, bound + b_lin, skipped, summed, n_lin
+
+
+def _tile_sums(te, point, tile, side, points, normals, m):
+    """``Σ side W_e t_e`` of clear tiles ``(point, tile, side) (P,)`` over their tile edges, as the exact path
+    sums them (:func:`.clear_tiles.clear_irradiance`: the same edge terms, the same per-pair sums, bit for
+    bit), and ``Σ |per-pair sum|`` per receiver: ``(m, 3)`` each. Only the sums over the pairs differ from the
+    exact path's (other pairs in between): their rounding is within ``ROUNDING × ½ Σ |per pair|`` of H."""
+    from .clear_tiles import ClearPairs, _batches, _edge_terms
+
+    out = np.zeros((m, 3))
+    mag = np.zeros((m, 3))
+    pairs = ClearPairs(point, tile, side, np.arange(len(point)))
+    for sub in _batches(te, pairs):
+        _, e, t = _edge_terms(te, sub, points, normals)
+        n_edges = np.diff(te.edge_ptr)[sub.tile]
+        per_pair = np.add.reduceat(t[:, None] * te.weight[e], np.cumsum(n_edges) - n_edges, axis=0)   # (P', 3)
+        np.add.at(out, sub.point, sub.side[:, None] * per_pair)
+        np.add.at(mag, sub.point, np.abs(per_pair))
+    return out, mag
 
 
 def _weights(ne: NodeEdges):
-    """``(has_v, W (E, 6) or (E, 3), |W[:, :3]| (E, 3))`` for the edge sums: some edge has a proxy weight V
-    (:func:`proxy_scene`), and the weights to gather: W's three columns alone (contiguous) without; cached."""
+    """``(has_v, W (E, 6) or (E, 3), |W[:, :3]| (E, 3), no_v (N,))`` for the edge sums: some edge has a proxy
+    weight V (:func:`proxy_scene`); the weights to gather (W's three columns alone, contiguous, without);
+    the nodes whose list has no V; cached on ``ne``."""
     cached = getattr(ne, "_w3", None)
     if cached is None:
-        has_v = bool((ne.weight[:, 3:] != 0).any()) if len(ne.weight) else False
-        cached = (has_v, ne.weight if has_v else np.ascontiguousarray(ne.weight[:, :3]), np.abs(ne.weight[:, :3]))
+        v_edge = (ne.weight[:, 3:] != 0).any(axis=1)
+        has_v = bool(v_edge.any())
+        n_nodes = len(ne.ptr) - 1
+        owner = np.repeat(np.arange(n_nodes), np.diff(ne.ptr))
+        no_v = np.bincount(owner[v_edge], minlength=n_nodes) == 0
+        cached = (has_v, ne.weight if has_v else np.ascontiguousarray(ne.weight[:, :3]), np.abs(ne.weight[:, :3]),
+                  no_v)
         ne._w3 = cached
     return cached
 

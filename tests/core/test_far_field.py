@@ -366,3 +366,37 @@ def test_float32_convex_cores_are_no_proxies():
     pick = rng.choice(sc.n_polygons, 96)
     pts = sc.poly_centers[pick] + 1e-6 * sc.poly_normals[pick]
     _check(sc, pts, sc.poly_normals[pick], rel_tol=1e-3)
+
+
+
+def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
+    """Clear tiles that skip no edge go through the exact path's own tile sums (:func:`far_field._tile_sums`,
+    cheaper per edge) unless their welded list is much shorter: with and without that path (``PLAIN_RATIO``
+    0) error <= bound <= tolerance, the same edges are counted as summed and the two agree within their
+    bounds; a smooth radiance takes it for most clear tiles."""
+    from hemisphere_local_pass.core import far_field
+
+    calls = []
+    real = far_field._tile_sums
+
+    def spy(te, point, *a):
+        calls.append(len(point))
+        return real(te, point, *a)
+
+    monkeypatch.setattr(far_field, "_tile_sums", spy)
+    box, scene = _smooth_box(16)
+    rng = np.random.default_rng(5)
+    pick = rng.choice(box.n_polygons, size=40)
+    c = np.array([box.vertices[box.polygons[i]].mean(axis=0) for i in pick])
+    nrm = box.normals()[pick]
+    pts = c + 1e-6 * nrm
+    h1, exact, st1 = _check(scene, pts, nrm, rel_tol=1e-4)
+    n_plain = sum(calls)
+    assert n_plain > 10 * len(pts)
+    monkeypatch.setattr(far_field, "PLAIN_RATIO", 0.0)
+    calls.clear()
+    h0, _, st0 = _check(scene, pts, nrm, rel_tol=1e-4)
+    assert sum(calls) == 0
+    np.testing.assert_array_equal(st0.edges_summed, st1.edges_summed)
+    np.testing.assert_array_equal(st0.edges_skipped, st1.edges_skipped)
+    assert (np.abs(h1 - h0) <= st0.error_bound + st1.error_bound).all()
