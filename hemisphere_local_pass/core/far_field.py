@@ -273,7 +273,7 @@ def node_edges(scene, occ, h, te) -> NodeEdges:
 
 def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     """For (receiver, inner node) entries ``ep, en (E,)`` whose face has a volume instance and whose list
-    of cutting volumes is empty: ``(clear (E,) bool, side (E,) float ±1)``.
+    of cutting volumes is empty: ``(clear (E,) bool, side (E,) float ±1)`` (side 0 where not tested).
 
     A clear node is summed whole: over its welded list (``ne.usable``), or by its linear proxy when that
     fits :data:`LINEAR_SHARE` of ``tolerance`` (3,) (:func:`linear_node_test`; None: lists only).
@@ -284,6 +284,17 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     plane by more than :data:`NODE_SIDE_FACTOR` times the tile test's margin, the tiles' plane spread
     (``dn``, ``d0``) included.
     """
+    # only nodes with a list, or a proxy that can fit here, are tested (side is 0 for the others)
+    ok = np.zeros(len(en), dtype=bool)
+    side = np.zeros(len(en))
+    lin = np.zeros(len(en), dtype=bool)
+    if tolerance is not None and ne.fit is not None:
+        c = np.flatnonzero(~ne.usable[en] & ne.fit.ok[en])
+        lin[c[linear_may_fit(ne.fit, h, points, ep[c], en[c], LINEAR_SHARE * np.asarray(tolerance))]] = True
+    sel = np.flatnonzero(ne.usable[en] | lin)
+    if not len(sel):
+        return ok, side
+    ep, en, lin = ep[sel], en[sel], lin[sel]
     geo = np.ones(len(en), dtype=bool)
     corners = h.corners[en] - points[ep][:, None, :]
     height = np.matmul(corners, normals[ep][:, :, None])[..., 0].min(axis=1)
@@ -296,15 +307,14 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     plane_tol = ((PLANE_EPS + ne.tilt[en]) * scale + ne.noise[en] + COORD_EPS * np.abs(points[ep]).max(axis=1))
     spread = ne.dn[en] * dist + ne.d0[en]
     geo &= np.abs(d) - spread > NODE_SIDE_FACTOR * (SIDE_MARGIN * scale + 4.0 * plane_tol)
-    ok = geo & ne.usable[en]
-    if tolerance is not None and ne.fit is not None:
-        cand = np.flatnonzero(geo & ~ok & ne.fit.ok[en])
-        if len(cand):
-            cand = cand[linear_may_fit(ne.fit, h, points, ep[cand], en[cand], LINEAR_SHARE * np.asarray(tolerance))]
-        if len(cand):
-            ok[cand] = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand],
-                                        LINEAR_SHARE * np.asarray(tolerance))[0]
-    return ok, np.sign(d)
+    ok_s = geo & ne.usable[en]
+    cand = np.flatnonzero(geo & lin)
+    if len(cand):
+        ok_s[cand] = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand],
+                                      LINEAR_SHARE * np.asarray(tolerance))[0]
+    ok[sel] = ok_s
+    side[sel] = np.sign(d)
+    return ok, side
 
 
 def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, tolerance, te=None):
