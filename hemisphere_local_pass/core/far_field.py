@@ -372,18 +372,22 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     start, n_e = ne.ptr[node], ne.ptr[node + 1] - ne.ptr[node]
     # longest prefix with ½ mass / d × (1 + SAFETY) <= share in every channel: binary search per pair
     limit = np.where(d[:, None] > 0, 2.0 * share * np.maximum(d, 0.0)[:, None] / (1.0 + SAFETY), -1.0)
-    lo = np.zeros(len(node), dtype=np.int64)           # skippable count: mass[start + lo - 1] fits
-    hi = n_e.copy()
+    # (only over the pairs whose first edge fits: the others skip nothing)
+    skip = np.zeros(len(node), dtype=np.int64)
+    srch = np.flatnonzero((n_e > 0) & (ne.mass[np.minimum(start, max(len(ne.mass) - 1, 0))] <= limit).all(axis=1)) \
+        if len(ne.mass) else np.zeros(0, dtype=np.int64)
+    lo = np.ones(len(srch), dtype=np.int64)            # skippable count: mass[start + lo - 1] fits
+    hi = n_e[srch]
+    s_start, s_limit = start[srch], limit[srch]
     while True:
         act = lo < hi
         if not act.any():
             break
         mid = (lo + hi + 1) // 2
-        idx = np.maximum(start + mid - 1, 0)
-        fits = act & (ne.mass[idx] <= limit).all(axis=1) & (mid > 0)
+        fits = act & (ne.mass[s_start + mid - 1] <= s_limit).all(axis=1)
         lo = np.where(fits, mid, lo)
         hi = np.where(act & ~fits, mid - 1, hi)
-    skip = lo
+    skip[srch] = lo
     used = np.where(skip[:, None] > 0, ne.mass[np.maximum(start + skip - 1, 0)], 0.0)
     pair_bound = 0.5 * used / np.where(d > 0, d, 1.0)[:, None] * (1.0 + SAFETY)
     for c in range(3):
