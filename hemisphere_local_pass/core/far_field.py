@@ -69,8 +69,8 @@ ROUNDING = 2.0**-33
 SAFETY = 1e-9
 #: the node-level side test asks for this multiple of the tile-level margin (see :func:`clear_node_test`)
 NODE_SIDE_FACTOR = 4.0
-#: a clear tile that skips no edge is summed as the exact path sums it when its tile edges are at most this
-#: many times its welded list (the welded sum costs ~1.2× per edge: it also sums the terms' magnitudes)
+#: a clear tile is summed as the exact path sums it (nothing skipped) when its tile edges are at most this
+#: many times what its welded list would sum (the welded sum costs ~1.2× per edge: it also sums magnitudes)
 PLAIN_RATIO = 1.2
 
 
@@ -324,9 +324,10 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     Args:
         ne: the scene's :class:`NodeEdges`; h: its hierarchy (bounding spheres); point, node: the
             pairs; points, normals: (m, 3) receivers; tolerance: (3,) absolute tolerance on H; te: the
-            scene's :class:`.clear_tiles.TileEdges` (or None): a tile that skips no edge, has no
-            uniform-face proxy and whose welded list is not shorter than :data:`PLAIN_RATIO` of its tile
-            edges is summed over these as the exact path sums it (cheaper per edge: no magnitudes).
+            scene's :class:`.clear_tiles.TileEdges` (or None): a tile without uniform-face proxies whose
+            tile edges are at most :data:`PLAIN_RATIO` times what its welded list would sum (after the
+            edges it may skip) is summed over them, nothing skipped, as the exact path sums it (cheaper
+            per edge: no magnitudes).
     Returns:
         ``H (m, 3)`` (W m^-2, the ``π ·`` of eq. 3 included), ``bound (m, 3)`` (see the module doc),
         ``skipped (m,)`` edges left out, ``summed (m,)`` edges computed and ``linear (m,)`` linear
@@ -388,6 +389,15 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         lo = np.where(fits, mid, lo)
         hi = np.where(act & ~fits, mid - 1, hi)
     skip[srch] = lo
+    # without proxies only W's three columns are gathered (contiguous, with their magnitudes)
+    has_v, w_cols, w_abs, no_v = _weights(ne)
+    plain = np.zeros(len(node), dtype=bool)
+    if te is not None:
+        # tiles whose welded list, less what it may skip, is not much shorter than their tile edges: the
+        # exact path's own sums over all of these (cheaper per edge), nothing skipped
+        n_te = np.diff(te.edge_ptr)[np.minimum(node, len(te.edge_ptr) - 2)]
+        plain = (node < h.n_tiles) & no_v[node] & (n_te > 0) & (n_te <= PLAIN_RATIO * (n_e - skip))
+        skip[plain] = 0
     used = np.where(skip[:, None] > 0, ne.mass[np.maximum(start + skip - 1, 0)], 0.0)
     pair_bound = 0.5 * used / np.where(d > 0, d, 1.0)[:, None] * (1.0 + SAFETY)
     for c in range(3):
@@ -395,18 +405,12 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     n_run = n_e - skip
     summed = np.bincount(point, weights=n_run, minlength=m)
     skipped = np.bincount(point, weights=skip, minlength=m)
-    # without proxies only W's three columns are gathered (contiguous, with their magnitudes)
-    has_v, w_cols, w_abs, no_v = _weights(ne)
     mag = np.zeros((m, 3))
-    if te is not None:
-        # tiles that skip nothing and whose welded list is not much shorter: the exact path's own sums
-        n_te = np.diff(te.edge_ptr)[np.minimum(node, len(te.edge_ptr) - 2)]
-        plain = (skip == 0) & (node < h.n_tiles) & no_v[node] & (n_te > 0) & (n_te <= PLAIN_RATIO * n_e)
-        if plain.any():
-            out, mag = _tile_sums(te, point[plain], node[plain], side[plain], points, normals, m)
-            summed += np.bincount(point[plain], weights=n_te[plain] - n_run[plain], minlength=m)
-            keep = ~plain
-            point, node, side, start, skip, n_run = (x[keep] for x in (point, node, side, start, skip, n_run))
+    if plain.any():
+        out, mag = _tile_sums(te, point[plain], node[plain], side[plain], points, normals, m)
+        summed += np.bincount(point[plain], weights=n_te[plain] - n_run[plain], minlength=m)
+        keep = ~plain
+        point, node, side, start, skip, n_run = (x[keep] for x in (point, node, side, start, skip, n_run))
     # the remaining edges, in batches of about 2**14 terms
     ends = np.cumsum(n_run)
     cuts = np.searchsorted(ends, np.arange(2**14, ends[-1] if len(ends) else 0, 2**14), side="right")

@@ -372,8 +372,8 @@ def test_float32_convex_cores_are_no_proxies():
 def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
     """Clear tiles that skip no edge go through the exact path's own tile sums (:func:`far_field._tile_sums`,
     cheaper per edge) unless their welded list is much shorter: with and without that path (``PLAIN_RATIO``
-    0) error <= bound <= tolerance, the same edges are counted as summed and the two agree within their
-    bounds; a smooth radiance takes it for most clear tiles."""
+    0) error <= bound <= tolerance and the two agree within their bounds; a smooth radiance takes it for
+    most clear tiles."""
     from hemisphere_local_pass.core import far_field
 
     calls = []
@@ -397,6 +397,4 @@ def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
     calls.clear()
     h0, _, st0 = _check(scene, pts, nrm, rel_tol=1e-4)
     assert sum(calls) == 0
-    np.testing.assert_array_equal(st0.edges_summed, st1.edges_summed)
-    np.testing.assert_array_equal(st0.edges_skipped, st1.edges_skipped)
     assert (np.abs(h1 - h0) <= st0.error_bound + st1.error_bound).all()
