@@ -466,8 +466,9 @@ def _tile_sums(te, point, tile, side, points, normals, m):
         _, e, t = _edge_terms(te, sub, points, normals)
         n_edges = np.diff(te.edge_ptr)[sub.tile]
         per_pair = np.add.reduceat(t[:, None] * te.weight[e], np.cumsum(n_edges) - n_edges, axis=0)   # (P', 3)
-        np.add.at(out, sub.point, sub.side[:, None] * per_pair)
-        np.add.at(mag, sub.point, np.abs(per_pair))
+        for c in range(3):
+            out[:, c] += np.bincount(sub.point, weights=sub.side * per_pair[:, c], minlength=m)
+            mag[:, c] += np.bincount(sub.point, weights=np.abs(per_pair[:, c]), minlength=m)
     return out, mag
 
 
