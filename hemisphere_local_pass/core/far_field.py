@@ -40,6 +40,11 @@ of the tolerance (the edges' half of the receiver's tolerance split evenly over 
 the bound it used is returned. A bright patch among dim ones, a chequerboard, or a receiver close to
 the node gets no skip: its bound would not fit.
 
+**Never dearer than exact where it saves nothing.** A proxy is tested only where a necessary condition
+on the distance says it can pass (:func:`linear_may_fit`), and a clear tile whose welded list would sum
+about as many edges as the tile has is summed over its tile edges as the exact path sums them
+(:func:`_tile_sums`, :data:`PLAIN_RATIO`), nothing skipped.
+
 The returned bound per receiver and channel is the sum of the pairs' bounds plus a rounding allowance
 (:data:`ROUNDING`, relative to ``½ Σ |W_e,c t_e|`` of the terms summed): the welded sum adds the same
 terms in another order than the exact path.
