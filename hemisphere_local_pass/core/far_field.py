@@ -40,6 +40,11 @@ of the tolerance (the edges' half of the receiver's tolerance split evenly over 
 the bound it used is returned. A bright patch among dim ones, a chequerboard, or a receiver close to
 the node gets no skip: its bound would not fit.
 
+**Never dearer than exact where it saves nothing.** A proxy is tested only where a necessary condition
+on the distance says it can pass (:func:`linear_may_fit`), and a clear tile whose welded list would sum
+about as many edges as the tile has is summed over its tile edges as the exact path sums them
+(:func:`_tile_sums`, :data:`PLAIN_RATIO`), nothing skipped.
+
 The returned bound per receiver and channel is the sum of the pairs' bounds plus a rounding allowance
 (:data:`ROUNDING`, relative to ``½ Σ |W_e,c t_e|`` of the terms summed): the welded sum adds the same
 terms in another order than the exact path.
@@ -69,6 +74,9 @@ ROUNDING = 2.0**-33
 SAFETY = 1e-9
 #: the node-level side test asks for this multiple of the tile-level margin (see :func:`clear_node_test`)
 NODE_SIDE_FACTOR = 4.0
+#: a clear tile is summed as the exact path sums it (nothing skipped) when its tile edges are at most this
+#: many times what its welded list would sum (the welded sum costs ~1.2× per edge: it also sums magnitudes)
+PLAIN_RATIO = 1.2
 
 
 @dataclass
@@ -270,7 +278,7 @@ def node_edges(scene, occ, h, te) -> NodeEdges:
 
 def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     """For (receiver, inner node) entries ``ep, en (E,)`` whose face has a volume instance and whose list
-    of cutting volumes is empty: ``(clear (E,) bool, side (E,) float ±1)``.
+    of cutting volumes is empty: ``(clear (E,) bool, side (E,) float ±1)`` (side 0 where not tested).
 
     A clear node is summed whole: over its welded list (``ne.usable``), or by its linear proxy when that
     fits :data:`LINEAR_SHARE` of ``tolerance`` (3,) (:func:`linear_node_test`; None: lists only).
@@ -281,6 +289,17 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     plane by more than :data:`NODE_SIDE_FACTOR` times the tile test's margin, the tiles' plane spread
     (``dn``, ``d0``) included.
     """
+    # only nodes with a list, or a proxy that can fit here, are tested (side is 0 for the others)
+    ok = np.zeros(len(en), dtype=bool)
+    side = np.zeros(len(en))
+    lin = np.zeros(len(en), dtype=bool)
+    if tolerance is not None and ne.fit is not None:
+        c = np.flatnonzero(~ne.usable[en] & ne.fit.ok[en])
+        lin[c[linear_may_fit(ne.fit, h, points, ep[c], en[c], LINEAR_SHARE * np.asarray(tolerance))]] = True
+    sel = np.flatnonzero(ne.usable[en] | lin)
+    if not len(sel):
+        return ok, side
+    ep, en, lin = ep[sel], en[sel], lin[sel]
     geo = np.ones(len(en), dtype=bool)
     corners = h.corners[en] - points[ep][:, None, :]
     height = np.matmul(corners, normals[ep][:, :, None])[..., 0].min(axis=1)
@@ -293,22 +312,27 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     plane_tol = ((PLANE_EPS + ne.tilt[en]) * scale + ne.noise[en] + COORD_EPS * np.abs(points[ep]).max(axis=1))
     spread = ne.dn[en] * dist + ne.d0[en]
     geo &= np.abs(d) - spread > NODE_SIDE_FACTOR * (SIDE_MARGIN * scale + 4.0 * plane_tol)
-    ok = geo & ne.usable[en]
-    if tolerance is not None and ne.fit is not None:
-        cand = np.flatnonzero(geo & ~ok & ne.fit.ok[en])
-        if len(cand):
-            ok[cand] = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand],
-                                        LINEAR_SHARE * np.asarray(tolerance))[0]
-    return ok, np.sign(d)
+    ok_s = geo & ne.usable[en]
+    cand = np.flatnonzero(geo & lin)
+    if len(cand):
+        ok_s[cand] = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand],
+                                      LINEAR_SHARE * np.asarray(tolerance))[0]
+    ok[sel] = ok_s
+    side[sel] = np.sign(d)
+    return ok, side
 
 
-def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, tolerance):
+def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, tolerance, te=None):
     """``H`` of the clear nodes and tiles ``(point (P,), node (P,), side (P,) ±1)`` (the lit ones) and its
     bound.
 
     Args:
         ne: the scene's :class:`NodeEdges`; h: its hierarchy (bounding spheres); point, node: the
-            pairs; points, normals: (m, 3) receivers; tolerance: (3,) absolute tolerance on H.
+            pairs; points, normals: (m, 3) receivers; tolerance: (3,) absolute tolerance on H; te: the
+            scene's :class:`.clear_tiles.TileEdges` (or None): a tile without uniform-face proxies whose
+            tile edges are at most :data:`PLAIN_RATIO` times what its welded list would sum (after the
+            edges it may skip) is summed over them, nothing skipped, as the exact path sums it (cheaper
+            per edge: no magnitudes).
     Returns:
         ``H (m, 3)`` (W m^-2, the ``π ·`` of eq. 3 included), ``bound (m, 3)`` (see the module doc),
         ``skipped (m,)`` edges left out, ``summed (m,)`` edges computed and ``linear (m,)`` linear
@@ -329,6 +353,8 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         n_list = ne.ptr[node + 1] - ne.ptr[node]
         forced = ~ne.usable[node] & ne.fit.ok[node]
         cand = np.flatnonzero(ne.fit.ok[node] & ((n_list > LINEAR_EDGES) | forced))
+        # the full test only where it can pass (or the traversal already took the proxy)
+        cand = cand[forced[cand] | linear_may_fit(ne.fit, h, points, point[cand], node[cand], LINEAR_SHARE * tol)]
         fits, lb = linear_node_test(ne.fit, h, points, normals, point[cand], node[cand], LINEAR_SHARE * tol)
         take = fits | forced[cand]
         sel, lb = cand[take], lb[take]
@@ -352,30 +378,49 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     start, n_e = ne.ptr[node], ne.ptr[node + 1] - ne.ptr[node]
     # longest prefix with ½ mass / d × (1 + SAFETY) <= share in every channel: binary search per pair
     limit = np.where(d[:, None] > 0, 2.0 * share * np.maximum(d, 0.0)[:, None] / (1.0 + SAFETY), -1.0)
-    lo = np.zeros(len(node), dtype=np.int64)           # skippable count: mass[start + lo - 1] fits
-    hi = n_e.copy()
+    # (only over the pairs whose first edge fits: the others skip nothing)
+    skip = np.zeros(len(node), dtype=np.int64)
+    srch = np.flatnonzero((n_e > 0) & (ne.mass[np.minimum(start, max(len(ne.mass) - 1, 0))] <= limit).all(axis=1)) \
+        if len(ne.mass) else np.zeros(0, dtype=np.int64)
+    lo = np.ones(len(srch), dtype=np.int64)            # skippable count: mass[start + lo - 1] fits
+    hi = n_e[srch]
+    s_start, s_limit = start[srch], limit[srch]
     while True:
         act = lo < hi
         if not act.any():
             break
         mid = (lo + hi + 1) // 2
-        idx = np.maximum(start + mid - 1, 0)
-        fits = act & (ne.mass[idx] <= limit).all(axis=1) & (mid > 0)
+        fits = act & (ne.mass[s_start + mid - 1] <= s_limit).all(axis=1)
         lo = np.where(fits, mid, lo)
         hi = np.where(act & ~fits, mid - 1, hi)
-    skip = lo
+    skip[srch] = lo
+    # without proxies only W's three columns are gathered (contiguous, with their magnitudes)
+    has_v, w_cols, w_abs, no_v = _weights(ne)
+    plain = np.zeros(len(node), dtype=bool)
+    if te is not None:
+        # tiles whose welded list, less what it may skip, is not much shorter than their tile edges: the
+        # exact path's own sums over all of these (cheaper per edge), nothing skipped
+        n_te = np.diff(te.edge_ptr)[np.minimum(node, len(te.edge_ptr) - 2)]
+        plain = (node < h.n_tiles) & no_v[node] & (n_te > 0) & (n_te <= PLAIN_RATIO * (n_e - skip))
+        skip[plain] = 0
     used = np.where(skip[:, None] > 0, ne.mass[np.maximum(start + skip - 1, 0)], 0.0)
     pair_bound = 0.5 * used / np.where(d > 0, d, 1.0)[:, None] * (1.0 + SAFETY)
     for c in range(3):
         bound[:, c] = np.bincount(point, weights=pair_bound[:, c], minlength=m)
-    # the remaining edges, in batches of about 2**14 terms
     n_run = n_e - skip
+    summed = np.bincount(point, weights=n_run, minlength=m)
+    skipped = np.bincount(point, weights=skip, minlength=m)
+    mag = np.zeros((m, 3))
+    if plain.any():
+        out, mag = _tile_sums(te, point[plain], node[plain], side[plain], points, normals, m)
+        summed += np.bincount(point[plain], weights=n_te[plain] - n_run[plain], minlength=m)
+        keep = ~plain
+        point, node, side, start, skip, n_run = (x[keep] for x in (point, node, side, start, skip, n_run))
+    # the remaining edges, in batches of about 2**14 terms
     ends = np.cumsum(n_run)
     cuts = np.searchsorted(ends, np.arange(2**14, ends[-1] if len(ends) else 0, 2**14), side="right")
     bounds_ = np.unique(np.concatenate([[0], cuts, [len(node)]]))
-    mag = np.zeros((m, 3))
     vsum = np.zeros((m, 3))
-    has_v = bool((ne.weight[:, 3:] != 0).any()) if len(ne.weight) else False
     px_all = [np.ascontiguousarray(points[:, i]) for i in range(3)]
     nx_all = [np.ascontiguousarray(normals[:, i]) for i in range(3)]
     for s, e in zip(bounds_[:-1], bounds_[1:]):
@@ -395,12 +440,11 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         ratio = np.divide(np.arctan2(sn, dd), sn, out=np.zeros_like(sn), where=sn > 0.0)
         nx, ny, nz = (x[p] for x in nx_all)
         t = (cx * nx + cy * ny + cz * nz) * ratio
-        w = ne.weight[pos]
         # per pair (its edges are consecutive), then per receiver
         run = np.flatnonzero(cnt > 0)
         first = (np.cumsum(cnt) - cnt)[run]
-        per = np.add.reduceat(t[:, None] * w, first, axis=0) * side[s:e][run, None]            # (P', 6)
-        per_mag = np.add.reduceat(np.abs(t)[:, None] * np.abs(w[:, :3]), first, axis=0)
+        per = np.add.reduceat(t[:, None] * w_cols[pos], first, axis=0) * side[s:e][run, None]   # (P', 6 or 3)
+        per_mag = np.add.reduceat(np.abs(t)[:, None] * w_abs[pos], first, axis=0)
         pp = point[s:e][run]
         np.add.at(out, pp, per[:, :3])
         np.add.at(mag, pp, per_mag)
@@ -410,8 +454,44 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     out *= 0.5
     # the proxies' radiance bound: π Σ ½ range F over clear proxies, = ½ Σ side V t (>= 0 exactly)
     bound += ROUNDING * 0.5 * mag + 0.5 * np.abs(vsum) * (1.0 + SAFETY)
-    return (out + h_lin, bound + b_lin, np.bincount(point, weights=skip, minlength=m),
-            np.bincount(point, weights=n_run, minlength=m), n_lin)
+    return out + h_lin, bound + b_lin, skipped, summed, n_lin
+
+
+def _tile_sums(te, point, tile, side, points, normals, m):
+    """``Σ side W_e t_e`` of clear tiles ``(point, tile, side) (P,)`` over their tile edges, as the exact path
+    sums them (:func:`.clear_tiles.clear_irradiance`: the same edge terms, the same per-pair sums, bit for
+    bit), and ``Σ |per-pair sum|`` per receiver: ``(m, 3)`` each. Only the sums over the pairs differ from the
+    exact path's (other pairs in between): their rounding is within ``ROUNDING × ½ Σ |per pair|`` of H."""
+    from .clear_tiles import ClearPairs, _batches, _edge_terms
+
+    out = np.zeros((m, 3))
+    mag = np.zeros((m, 3))
+    pairs = ClearPairs(point, tile, side, np.arange(len(point)))
+    for sub in _batches(te, pairs):
+        _, e, t = _edge_terms(te, sub, points, normals)
+        n_edges = np.diff(te.edge_ptr)[sub.tile]
+        per_pair = np.add.reduceat(t[:, None] * te.weight[e], np.cumsum(n_edges) - n_edges, axis=0)   # (P', 3)
+        for c in range(3):
+            out[:, c] += np.bincount(sub.point, weights=sub.side * per_pair[:, c], minlength=m)
+            mag[:, c] += np.bincount(sub.point, weights=np.abs(per_pair[:, c]), minlength=m)
+    return out, mag
+
+
+def _weights(ne: NodeEdges):
+    """``(has_v, W (E, 6) or (E, 3), |W[:, :3]| (E, 3), no_v (N,))`` for the edge sums: some edge has a proxy
+    weight V (:func:`proxy_scene`); the weights to gather (W's three columns alone, contiguous, without);
+    the nodes whose list has no V; cached on ``ne``."""
+    cached = getattr(ne, "_w3", None)
+    if cached is None:
+        v_edge = (ne.weight[:, 3:] != 0).any(axis=1)
+        has_v = bool(v_edge.any())
+        n_nodes = len(ne.ptr) - 1
+        owner = np.repeat(np.arange(n_nodes), np.diff(ne.ptr))
+        no_v = np.bincount(owner[v_edge], minlength=n_nodes) == 0
+        cached = (has_v, ne.weight if has_v else np.ascontiguousarray(ne.weight[:, :3]), np.abs(ne.weight[:, :3]),
+                  no_v)
+        ne._w3 = cached
+    return cached
 
 
 def _face_ranges(scene, occ):
@@ -816,6 +896,30 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
     allowed = tol[None, :] * np.maximum(f_box, f_mid * (1.0 - 1e-12))[:, None]
     ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
     return ok, np.where(geo[:, None], bound, np.inf)
+
+
+def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
+    """(E,) bool: entries that :func:`linear_node_test` could pass at ``tolerance`` (3,); False ones cannot.
+
+    A necessary condition at the cost of one distance per entry: of the test's bound, the residual and
+    sawtooth terms alone are ``|δ| K_c / r_min⁵`` (``K = 14 max|ε| I + 28 |g| saw``, per node), and the
+    form factor's lower bound is at most ``A |δ| / (π r_min³)`` (``h_min <= r_max``, ``N·u <= r_c``, and
+    ``r_c >= r_min``: the members and their centroid are in the node's bounding sphere), so passing needs
+    ``r_min² >= π K_c / (tol_c A)`` in every channel (per node, cached for the tolerance). The threshold
+    is relaxed by 1 % for its rounding: a False is certain, a True only means "run the test"."""
+    tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
+    key = tol.tobytes()
+    cached = getattr(fit, "_reach", None)
+    if cached is None or cached[0] != key:
+        k = 14.0 * fit.resid * fit.inertia[:, None] + 28.0 * fit.gnorm * fit.saw[:, None]        # (N, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(k > 0, k / tol[None, :], 0.0).max(axis=1)                             # inf: tol_c = 0
+            r2 = np.where(fit.ok & (fit.area > 0), np.pi * q / np.where(fit.area > 0, fit.area, 1.0), np.inf)
+        cached = (key, 0.99 * np.nan_to_num(r2, nan=np.inf))
+        fit._reach = cached
+    rel = h.centers[en] - points[ep]
+    rmin = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - h.radii[en]
+    return (rmin > 0) & (rmin * rmin >= cached[1][en])
 
 
 def _quadrature_bound(fit: NodeFits, en, delta, rmin, rmax):

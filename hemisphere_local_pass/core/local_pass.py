@@ -351,7 +351,7 @@ def _irradiance_far_chunk(shared, p, n, u, tol) -> np.ndarray:
         lit = np.ones(len(side), dtype=bool) if scene.double_sided else side < 0
         hier = scene_hierarchy(scene, occ)
         h, bound, skipped, summed, linear = far_field_irradiance(scene_node_edges(scene, occ), hier, point[lit],
-                                                                 node[lit], side[lit], p, n, tol)
+                                                                 node[lit], side[lit], p, n, tol, te=clear[1])
         out[:, :3] += h
         out[:, 3:6] += bound
         out[:, 6], out[:, 7] = skipped, summed

@@ -284,6 +284,36 @@ def test_linear_proxy_bound_holds_node_by_node(field):
     assert err[tight].max() > 1e-14 * np.abs(exact).max()
 
 
+@pytest.mark.parametrize("field", ["falloff", "ramp"])
+def test_linear_prefilter_rejects_only_what_the_test_rejects(field):
+    """:func:`far_field.linear_may_fit` (the cheap necessary condition that spares the full test) is False
+    only where :func:`far_field.linear_node_test` fails, at tolerances from 1e-6 to 10 (one channel 0), for
+    receivers near and far, tilted; and it rejects most pairs at the small tolerances (not vacuous)."""
+    from hemisphere_local_pass.core.chunk import prepare_scene, scene_hierarchy, scene_node_edges
+    from hemisphere_local_pass.core.far_field import linear_may_fit, linear_node_test
+
+    scene = _grid_scene(32, _FIELDS[field])
+    occ = prepare_scene(scene)
+    h, fit = scene_hierarchy(scene, occ), scene_node_edges(scene, occ).fit
+    rng = np.random.default_rng(11)
+    m = 40
+    pts = np.column_stack([rng.uniform(-0.5, 1.5, m), rng.uniform(-0.5, 1.5, m), 10.0 ** rng.uniform(-2, 1, m)])
+    nrm = np.column_stack([rng.normal(0, 0.4, (m, 2)), -np.ones(m)])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    nodes = np.flatnonzero(fit.ok)
+    ep, en = np.repeat(np.arange(m), len(nodes)), np.tile(nodes, m)
+    passed = 0
+    for tol in ([1e-6] * 3, [1e-3] * 3, [1e-1, 1e-2, 1e-1], [10.0] * 3, [1.0, 0.0, 1.0]):
+        tol = np.array(tol)
+        fits = linear_node_test(fit, h, pts, nrm, ep, en, tol)[0]
+        may = linear_may_fit(fit, h, pts, ep, en, tol)
+        assert not (fits & ~may).any()
+        passed += fits.sum()
+        if tol.max() <= 1e-3:
+            assert may.mean() < 0.5
+    assert passed > 100
+
+
 def _smooth_box(sub):
     """``cornell_box(sub)`` with a smooth radiance, different on every polygon (benchmarks' kind)."""
     box = cornell_box(sub)
@@ -336,3 +366,35 @@ def test_float32_convex_cores_are_no_proxies():
     pick = rng.choice(sc.n_polygons, 96)
     pts = sc.poly_centers[pick] + 1e-6 * sc.poly_normals[pick]
     _check(sc, pts, sc.poly_normals[pick], rel_tol=1e-3)
+
+
+
+def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
+    """Clear tiles that skip no edge go through the exact path's own tile sums (:func:`far_field._tile_sums`,
+    cheaper per edge) unless their welded list is much shorter: with and without that path (``PLAIN_RATIO``
+    0) error <= bound <= tolerance and the two agree within their bounds; a smooth radiance takes it for
+    most clear tiles."""
+    from hemisphere_local_pass.core import far_field
+
+    calls = []
+    real = far_field._tile_sums
+
+    def spy(te, point, *a):
+        calls.append(len(point))
+        return real(te, point, *a)
+
+    monkeypatch.setattr(far_field, "_tile_sums", spy)
+    box, scene = _smooth_box(16)
+    rng = np.random.default_rng(5)
+    pick = rng.choice(box.n_polygons, size=40)
+    c = np.array([box.vertices[box.polygons[i]].mean(axis=0) for i in pick])
+    nrm = box.normals()[pick]
+    pts = c + 1e-6 * nrm
+    h1, exact, st1 = _check(scene, pts, nrm, rel_tol=1e-4)
+    n_plain = sum(calls)
+    assert n_plain > 10 * len(pts)
+    monkeypatch.setattr(far_field, "PLAIN_RATIO", 0.0)
+    calls.clear()
+    h0, _, st0 = _check(scene, pts, nrm, rel_tol=1e-4)
+    assert sum(calls) == 0
+    assert (np.abs(h1 - h0) <= st0.error_bound + st1.error_bound).all()
