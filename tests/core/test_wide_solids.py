@@ -6,7 +6,8 @@ receiver outside it: the solid's volume has one plane per face facing P plus one
 the face volumes keep their own width; padded to the solid's, they took ~130 MB per receiver at
 2,048 faces and 1.8 GB at 8,192 (O(n_o²)). Checked here: the volumes' layout, a traced peak bound for
 one receiver (measured 22 MB; with the padded layout 137 MB), and the irradiance equal bit for bit to the
-same receiver's with the face volumes padded as before (one wide volume placed in the narrow arrays).
+same receiver's with the face volumes padded as before (one wide volume placed in the narrow arrays);
+and in a room of boxes, whose volumes are padded by default, the same bits with them stored apart.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import tracemalloc
 
 import numpy as np
+from scenes_for_tests import random_box_room, random_free_points_in_room, random_unit_vectors
 
 from hemisphere_local_pass.core import Scene, irradiance, visibility
 from hemisphere_local_pass.core.chunk import prepare_scene
@@ -69,3 +71,18 @@ def test_ball_from_outside_memory_and_bits(monkeypatch):
     monkeypatch.setattr("hemisphere_local_pass.core.chunk.shadow_volumes", padded)
     h_padded = irradiance(sc, p, n, workers=1)
     assert np.array_equal(h, h_padded)
+
+
+def test_boxes_apart_equal_padded(monkeypatch):
+    """A room of 30 boxes (their volumes: 9 planes, padded by default) with the volumes stored apart
+    gives the padded layout's irradiance bit for bit (free receivers, random normals)."""
+    rng = np.random.default_rng(3)
+    mesh, boxes = random_box_room(rng, 30)
+    p = random_free_points_in_room(rng, boxes, 40)
+    n = random_unit_vectors(rng, len(p))
+    sc = Scene.from_polygons(np.array(mesh.vertices), mesh.polygons, np.array(mesh.radiance))
+    h_padded = irradiance(sc, p, n, workers=1)
+    monkeypatch.setattr(visibility, "WIDE_FACTOR", 1)
+    sv, _ = visibility.shadow_volumes(prepare_scene(sc), p, n)
+    assert sv.wide_row is not None and (sv.wide_row >= 0).sum() > 100
+    assert np.array_equal(irradiance(sc, p, n, workers=1), h_padded)
