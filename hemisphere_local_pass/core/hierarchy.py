@@ -237,8 +237,8 @@ def _box_top(h: TileHierarchy, node, point, normals, points):
 def _node_tests(h: TileHierarchy, node, point, q, sv, points):
     """Per (node, volume) entry: ``(covered, outside)`` bool, decided with :data:`NODE_MARGIN` (the
     exact minimum and maximum of each plane over the box; their rounding is far below the margin)."""
-    offset = take_rows(sv.offset, q)
-    smin, smax, xmax = _box_range(h, node, point, take_rows(sv.normal, q), offset, points)
+    normal, offset = sv.rows(q)
+    smin, smax, xmax = _box_range(h, node, point, normal, offset, points)
     margin = NODE_MARGIN * PLANE_EPS * (xmax[:, None] + np.abs(offset))             # (E, J)
     return (smin > margin).all(axis=1), (smax < -margin).any(axis=1)
 
