@@ -184,6 +184,42 @@ class ShadowVolumes:
         """The wide volumes' normals as three contiguous (W, Jw) arrays (for gathers by row)."""
         return tuple(np.ascontiguousarray(self.wide_normal[..., c]) for c in range(3))
 
+    @cached_property
+    def wide_groups(self):
+        """The wide volumes' planes in groups of ~sqrt(Jw), near in (normal, offset), each with a bounding
+        box, so that a body's sphere is tested only against the groups it may reach (:func:`_near_planes`):
+        ``cols (W, G, S)`` int64 the planes' slots (-1: none; unused slots are in no group), ``lo, hi
+        (W, G, 3)`` the box of their normals, ``off_max, off_abs (W, G)`` their largest offset and |offset|
+        (a group with no planes: ``off_max`` -inf), ``n_abs (W, G)`` their largest |normal component|."""
+        nx, ny, nz = self.wide_components
+        off = self.wide_offset
+        n_w, jw = off.shape
+        size = max(8, int(np.ceil(np.sqrt(jw))))
+        rows = []
+        for w in range(n_w):
+            cols = np.flatnonzero(~((nx[w] == 0) & (ny[w] == 0) & (nz[w] == 0) & (off[w] < 0)))
+            scale = np.abs(off[w, cols]).max(initial=0.0)
+            feats = np.stack([nx[w, cols], ny[w, cols], nz[w, cols], off[w, cols] / (scale if scale > 0 else 1.0)], 1)
+            rows.append(_kd_leaves(cols, feats, size))
+        n_g = max(1, max(len(x) for x in rows))
+        cols = np.full((n_w, n_g, size), -1, dtype=np.int64)
+        for w, leaves in enumerate(rows):
+            for g, c in enumerate(leaves):
+                cols[w, g, :len(c)] = c
+        has = cols >= 0
+        wr = np.arange(n_w)[:, None, None]
+        cc = np.where(has, cols, 0)
+        nrm = np.stack([nx[wr, cc], ny[wr, cc], nz[wr, cc]], axis=-1)              # (W, G, S, 3)
+        lo = np.where(has[..., None], nrm, np.inf).min(axis=2)
+        hi = np.where(has[..., None], nrm, -np.inf).max(axis=2)
+        empty = ~has.any(axis=2)
+        lo[empty], hi[empty] = 0.0, 0.0
+        o = off[wr, cc]
+        off_max = np.where(has, o, -np.inf).max(axis=2)
+        off_abs = np.where(has, np.abs(o), 0.0).max(axis=2)
+        n_abs = np.maximum(np.abs(lo), np.abs(hi)).max(axis=2)
+        return cols, lo, hi, off_max, off_abs, n_abs
+
     def is_wide(self, q: np.ndarray) -> np.ndarray:
         """(n,) bool: volumes ``q`` stored apart (see ``wide_row``)."""
         return np.zeros(len(q), dtype=bool) if self.wide_row is None else self.wide_row[q] >= 0
@@ -324,6 +360,9 @@ def _norm(a: np.ndarray) -> np.ndarray:
 #: (a ball's: thousands of planes); below, one padded array (a box's 9 planes: ~9 % faster per point
 #: in a room of 30 boxes than apart, the results bit for bit the same)
 WIDE_FACTOR = 4
+# the wide volumes' pair tests go through their groups of planes (False: every plane, the dense test;
+# for the benchmark's side-by-side figures: both give the same pairs and planes)
+WIDE_GROUPS = True
 
 
 def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, normals, limit) -> ShadowVolumes:
@@ -504,6 +543,8 @@ def _near_planes(keep, body, q, center_rel, radius, sv: ShadowVolumes, n_j: int)
     plane of the volume, and ``(kept, n_j)`` bool the planes it is not strictly inside of."""
     rel = take_rows(center_rel, body[keep])                                      # (p, 3)
     qk = q[keep]
+    if len(qk) and WIDE_GROUPS and sv.is_wide(qk).all():
+        return _near_planes_grouped(keep, body, q, center_rel, radius, sv, n_j)
     if len(qk) and sv.is_wide(qk).all():
         r = sv.wide_row[qk]
         nx, ny, nz = (take_rows(c, r) for c in sv.wide_components)              # (p, Jw) each
@@ -522,6 +563,60 @@ def _near_planes(keep, body, q, center_rel, radius, sv: ShadowVolumes, n_j: int)
     if planes.shape[1] < n_j:
         planes = np.concatenate([planes, np.zeros((len(keep), n_j - planes.shape[1]), dtype=bool)], axis=1)
     return keep, planes
+
+
+def _kd_leaves(cols: np.ndarray, feats: np.ndarray, size: int) -> list[np.ndarray]:
+    """``cols (n,)`` split into leaves of at most ``size`` (all full but one) by median cuts of
+    ``feats (n, d)`` along their widest coordinate: groups of nearby features."""
+    out, todo = [], [np.arange(len(cols))]
+    while todo:
+        i = todo.pop()
+        if len(i) <= size:
+            if len(i):
+                out.append(cols[i])
+            continue
+        f = feats[i]
+        o = i[np.argsort(f[:, int(np.argmax(f.max(axis=0) - f.min(axis=0)))], kind="stable")]
+        half = (-(-len(i) // size) + 1) // 2 * size                              # ceil(leaves / 2) leaves
+        todo += [o[half:], o[:half]]
+    return out
+
+
+def _near_planes_grouped(keep, body, q, center_rel, radius, sv: ShadowVolumes, n_j: int):
+    """:func:`_near_planes` for pairs with wide volumes only, testing per pair only the groups of planes
+    (:attr:`ShadowVolumes.wide_groups`) whose box bound does not put the whole group strictly inside the
+    sphere's margin. In exact arithmetic ``n.c - o >= sum_k min(lo_k c_k, hi_k c_k) - off_max`` for every
+    plane of a group; the bound is widened by 1e-9 of its operands' size (rounding is ~1e-16 of it), so a
+    skipped plane is one whose distance as computed would also be above the margin: the same pairs and
+    planes as the dense test, which the groups tested compute with the same operations."""
+    rel = take_rows(center_rel, body[keep])                                      # (p, 3)
+    r = sv.wide_row[q[keep]]
+    cols, lo, hi, off_max, off_abs, n_abs = sv.wide_groups
+    rad = radius[body[keep]]
+    rmax = np.maximum(np.maximum(np.abs(rel[:, 0]), np.abs(rel[:, 1])), np.abs(rel[:, 2]))
+    reach = rad * (1.0 + 1e-9) + PLANE_EPS * rmax
+    margin = rad * (1.0 + 1e-9) + PLANE_EPS * 4.0 * (rmax + rad)                 # as in _sphere_inside
+    lo_r, hi_r = lo[r], hi[r]                                                    # (p, G, 3)
+    c = rel[:, None, :]
+    lower = np.minimum(lo_r * c, hi_r * c).sum(axis=2) - off_max[r]              # (p, G)
+    a_r = off_abs[r]
+    slack = 1e-9 * (np.abs(rel).sum(axis=1)[:, None] * n_abs[r] + a_r)
+    pi, gi = np.nonzero(lower <= margin[:, None] + PLANE_EPS * 2.0 * a_r + slack)
+    ec = cols[r[pi], gi]                                                         # (E, S) planes' slots
+    has = ec >= 0
+    ecs = np.where(has, ec, 0)
+    re = r[pi][:, None]
+    nx, ny, nz = (c_[re, ecs] for c_ in sv.wide_components)
+    off = sv.wide_offset[re, ecs]
+    rel_e = rel[pi]
+    dist = nx * rel_e[:, 0:1] + ny * rel_e[:, 1:2] + nz * rel_e[:, 2:3] - off   # as in _near_planes
+    outside = np.zeros(len(keep), dtype=bool)
+    outside[pi[any_rows((dist <= -reach[pi][:, None]) & has)]] = True
+    flag = ~_sphere_inside(dist, off, rad[pi], rmax[pi]) & has
+    planes = np.zeros((len(keep), n_j), dtype=bool)
+    planes[np.broadcast_to(pi[:, None], ec.shape)[flag], ec[flag]] = True
+    near = np.flatnonzero(~outside)
+    return keep[near], planes[near]
 
 
 def _sphere_inside(dist, offset, radius, rmax):
