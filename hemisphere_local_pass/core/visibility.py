@@ -612,11 +612,14 @@ class _PlaneTree:
         pi = np.flatnonzero(self.root[r] >= 0)
         nd = self.root[r[pi]]
         out_p, out_n = [], []
+        lo, hi, size = self.lo.T.copy(), self.hi.T.copy(), np.abs(rel).sum(axis=1)    # (3, N), (p,)
         while len(pi):
-            c = rel[pi]
-            lower = np.minimum(self.lo[nd] * c, self.hi[nd] * c).sum(axis=1) - self.off_max[nd]
+            lower = -self.off_max[nd]
+            for k in range(3):
+                c = rel[pi, k]
+                lower += np.minimum(lo[k, nd] * c, hi[k, nd] * c)
             a = self.off_abs[nd]
-            thr = margin[pi] + PLANE_EPS * 2.0 * a + 1e-9 * (np.abs(c).sum(axis=1) * self.n_abs[nd] + a)
+            thr = margin[pi] + PLANE_EPS * 2.0 * a + 1e-9 * (size[pi] * self.n_abs[nd] + a)
             go = lower <= thr
             pi, nd = pi[go], nd[go]
             leaf = self.child[nd, 0] < 0
