@@ -184,6 +184,11 @@ class ShadowVolumes:
         """The wide volumes' normals as three contiguous (W, Jw) arrays (for gathers by row)."""
         return tuple(np.ascontiguousarray(self.wide_normal[..., c]) for c in range(3))
 
+    @cached_property
+    def wide_tree(self) -> _PlaneTree:
+        """The wide volumes' planes in a bounding tree (see :class:`_PlaneTree`), one root per row."""
+        return _PlaneTree.build(*self.wide_components, self.wide_offset)
+
     def is_wide(self, q: np.ndarray) -> np.ndarray:
         """(n,) bool: volumes ``q`` stored apart (see ``wide_row``)."""
         return np.zeros(len(q), dtype=bool) if self.wide_row is None else self.wide_row[q] >= 0
@@ -324,6 +329,11 @@ def _norm(a: np.ndarray) -> np.ndarray:
 #: (a ball's: thousands of planes); below, one padded array (a box's 9 planes: ~9 % faster per point
 #: in a room of 30 boxes than apart, the results bit for bit the same)
 WIDE_FACTOR = 4
+# the wide volumes' pair tests go through their groups of planes (False: every plane, the dense test;
+# for the benchmark's side-by-side figures: both give the same pairs and planes)
+WIDE_GROUPS = True
+# ... from this many planes on (below, the dense test over every plane was as fast: 728 planes, 2,048 faces)
+WIDE_TREE_MIN = 1024
 
 
 def _with_solids(sv: ShadowVolumes, table: np.ndarray, occ: Occluders, points, normals, limit) -> ShadowVolumes:
@@ -504,6 +514,8 @@ def _near_planes(keep, body, q, center_rel, radius, sv: ShadowVolumes, n_j: int)
     plane of the volume, and ``(kept, n_j)`` bool the planes it is not strictly inside of."""
     rel = take_rows(center_rel, body[keep])                                      # (p, 3)
     qk = q[keep]
+    if len(qk) and WIDE_GROUPS and n_j >= WIDE_TREE_MIN and sv.is_wide(qk).all():
+        return _near_planes_grouped(keep, body, q, center_rel, radius, sv, n_j)
     if len(qk) and sv.is_wide(qk).all():
         r = sv.wide_row[qk]
         nx, ny, nz = (take_rows(c, r) for c in sv.wide_components)              # (p, Jw) each
@@ -522,6 +534,129 @@ def _near_planes(keep, body, q, center_rel, radius, sv: ShadowVolumes, n_j: int)
     if planes.shape[1] < n_j:
         planes = np.concatenate([planes, np.zeros((len(keep), n_j - planes.shape[1]), dtype=bool)], axis=1)
     return keep, planes
+
+
+@dataclass
+class _PlaneTree:
+    """A bounding tree over planes ``n . x = o`` (median cuts along the widest of (normal, offset /
+    max |offset|), leaves of at most ``LEAF`` planes). Node arrays: ``lo, hi (N, 3)`` the box of its planes'
+    normals, ``off_max, off_abs (N,)`` their largest offset and |offset|, ``n_abs (N,)`` their largest
+    |normal component|, ``child (N, 2)`` (-1: a leaf), ``cols (N, LEAF)`` a leaf's planes' slots (-1:
+    none); ``root (W,)`` per row (-1: a row with no planes). A row's unused slots (zero normal, negative
+    offset) are in no node. For every plane of a node, in exact arithmetic,
+    ``n . c - o >= sum_k min(lo_k c_k, hi_k c_k) - off_max``."""
+
+    LEAF = 8
+    lo: np.ndarray
+    hi: np.ndarray
+    off_max: np.ndarray
+    off_abs: np.ndarray
+    n_abs: np.ndarray
+    child: np.ndarray
+    cols: np.ndarray
+    root: np.ndarray
+
+    @classmethod
+    def build(cls, nx: np.ndarray, ny: np.ndarray, nz: np.ndarray, off: np.ndarray) -> _PlaneTree:
+        """From the rows' planes ``nx, ny, nz, off (W, Jw)``."""
+        nodes, root = [], []                                      # (row, slots, parent, which child)
+        for w in range(len(off)):
+            cols = np.flatnonzero(~((nx[w] == 0) & (ny[w] == 0) & (nz[w] == 0) & (off[w] < 0)))
+            if not len(cols):
+                root.append(-1)
+                continue
+            scale = np.abs(off[w, cols]).max()
+            feats = np.stack([nx[w, cols], ny[w, cols], nz[w, cols], off[w, cols] / (scale if scale > 0 else 1.0)], 1)
+            root.append(len(nodes))
+            todo = [(np.arange(len(cols)), -1, 0)]
+            while todo:
+                i, parent, k = todo.pop()
+                me = len(nodes)
+                nodes.append((w, cols[i], parent, k))
+                if len(i) > cls.LEAF:
+                    f = feats[i]
+                    o = i[np.argsort(f[:, int(np.argmax(f.max(axis=0) - f.min(axis=0)))], kind="stable")]
+                    todo += [(o[len(o) // 2:], me, 1), (o[:len(o) // 2], me, 0)]
+        n = len(nodes)
+        child = np.full((n, 2), -1, dtype=np.int64)
+        leaf_cols = np.full((n, cls.LEAF), -1, dtype=np.int64)
+        row = np.zeros(n, dtype=np.int64)
+        depth = np.zeros(n, dtype=np.int64)
+        for m, (w, c, parent, k) in enumerate(nodes):
+            row[m] = w
+            if parent >= 0:
+                child[parent, k] = m
+                depth[m] = depth[parent] + 1                   # (pre-order: a parent comes first)
+            if len(c) <= cls.LEAF:
+                leaf_cols[m, :len(c)] = c
+        has = leaf_cols >= 0                                   # leaves' bounds from their planes
+        rw, cs = row[:, None], np.where(has, leaf_cols, 0)
+        nrm = np.stack([nx[rw, cs], ny[rw, cs], nz[rw, cs]], axis=-1)            # (N, LEAF, 3)
+        lo = np.where(has[..., None], nrm, np.inf).min(axis=1)
+        hi = np.where(has[..., None], nrm, -np.inf).max(axis=1)
+        off_max = np.where(has, off[rw, cs], -np.inf).max(axis=1)
+        off_abs = np.where(has, np.abs(off[rw, cs]), -np.inf).max(axis=1)
+        for d in range(int(depth.max(initial=0)), -1, -1):      # then the inner nodes', deepest first
+            m = np.flatnonzero((depth == d) & (child[:, 0] >= 0))
+            c0, c1 = child[m, 0], child[m, 1]
+            lo[m], hi[m] = np.minimum(lo[c0], lo[c1]), np.maximum(hi[c0], hi[c1])
+            off_max[m], off_abs[m] = np.maximum(off_max[c0], off_max[c1]), np.maximum(off_abs[c0], off_abs[c1])
+        n_abs = np.maximum(np.abs(lo), np.abs(hi)).max(axis=1)
+        return cls(lo, hi, off_max, off_abs, n_abs, child, leaf_cols, np.array(root, dtype=np.int64))
+
+    def leaves_near(self, r: np.ndarray, rel: np.ndarray, margin: np.ndarray):
+        """Entries ``(pair (E,), leaf (E,))``: the leaves of rows ``r (p,)`` not known to lie wholly at more
+        than ``margin (p,)`` + the plane tolerance ``PLANE_EPS 2 |o|`` from ``rel (p, 3)``. The bound is
+        widened by 1e-9 of its operands' size (its rounding, and a plane's distance's, is ~1e-16 of it),
+        so every plane left out is one whose computed distance also exceeds that."""
+        pi = np.flatnonzero(self.root[r] >= 0)
+        nd = self.root[r[pi]]
+        out_p, out_n = [], []
+        lo, hi, size = self.lo.T.copy(), self.hi.T.copy(), np.abs(rel).sum(axis=1)    # (3, N), (p,)
+        while len(pi):
+            lower = -self.off_max[nd]
+            for k in range(3):
+                c = rel[pi, k]
+                lower += np.minimum(lo[k, nd] * c, hi[k, nd] * c)
+            a = self.off_abs[nd]
+            thr = margin[pi] + PLANE_EPS * 2.0 * a + 1e-9 * (size[pi] * self.n_abs[nd] + a)
+            go = lower <= thr
+            pi, nd = pi[go], nd[go]
+            leaf = self.child[nd, 0] < 0
+            out_p.append(pi[leaf])
+            out_n.append(nd[leaf])
+            pi, nd = np.tile(pi[~leaf], 2), self.child[nd[~leaf]].T.ravel()
+        return np.concatenate(out_p + [pi[:0]]), np.concatenate(out_n + [nd[:0]])
+
+
+def _near_planes_grouped(keep, body, q, center_rel, radius, sv: ShadowVolumes, n_j: int):
+    """:func:`_near_planes` for pairs with wide volumes only: per pair only the planes of the leaves of
+    :attr:`ShadowVolumes.wide_tree` its sphere's margin may reach are computed (with the same operations
+    as the dense test): the others lie strictly inside the sphere's margin, so they neither put the body
+    outside nor are near. The same pairs and planes as the dense test."""
+    rel = take_rows(center_rel, body[keep])                                      # (p, 3)
+    r = sv.wide_row[q[keep]]
+    rad = radius[body[keep]]
+    rmax = np.maximum(np.maximum(np.abs(rel[:, 0]), np.abs(rel[:, 1])), np.abs(rel[:, 2]))
+    reach = rad * (1.0 + 1e-9) + PLANE_EPS * rmax
+    margin = rad * (1.0 + 1e-9) + PLANE_EPS * 4.0 * (rmax + rad)                 # as in _sphere_inside (> -reach)
+    tree = sv.wide_tree
+    pi, leaf = tree.leaves_near(r, rel, margin)
+    ec = tree.cols[leaf]                                                         # (E, LEAF) planes' slots
+    has = ec >= 0
+    ecs = np.where(has, ec, 0)
+    re = r[pi][:, None]
+    nx, ny, nz = (c_[re, ecs] for c_ in sv.wide_components)
+    off = sv.wide_offset[re, ecs]
+    rel_e = rel[pi]
+    dist = nx * rel_e[:, 0:1] + ny * rel_e[:, 1:2] + nz * rel_e[:, 2:3] - off   # as in _near_planes
+    outside = np.zeros(len(keep), dtype=bool)
+    outside[pi[any_rows((dist <= -reach[pi][:, None]) & has)]] = True
+    flag = ~_sphere_inside(dist, off, rad[pi], rmax[pi]) & has
+    planes = np.zeros((len(keep), n_j), dtype=bool)
+    planes[np.broadcast_to(pi[:, None], ec.shape)[flag], ec[flag]] = True
+    near = np.flatnonzero(~outside)
+    return keep[near], planes[near]
 
 
 def _sphere_inside(dist, offset, radius, rmax):

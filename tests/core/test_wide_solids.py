@@ -86,3 +86,38 @@ def test_boxes_apart_equal_padded(monkeypatch):
     sv, _ = visibility.shadow_volumes(prepare_scene(sc), p, n)
     assert sv.wide_row is not None and (sv.wide_row >= 0).sum() > 100
     assert np.array_equal(irradiance(sc, p, n, workers=1), h_padded)
+
+
+def test_plane_tree_same_pairs_and_planes_as_dense(monkeypatch):
+    """The wide volume's pair tests through its bounding tree (:class:`.visibility._PlaneTree`) give the
+    pairs and near planes of the dense test over every plane, call by call, with fewer planes computed,
+    and H bit for bit."""
+    sc = _ball()
+    p, n = _receiver()
+    monkeypatch.setattr(visibility, "WIDE_TREE_MIN", 0)          # the ball's 700-odd planes through the tree
+    grouped, calls, seen = visibility._near_planes_grouped, [], {}
+
+    def checked(keep, body, q, c, r, sv, n_j):
+        a = grouped(keep, body, q, c, r, sv, n_j)
+        monkeypatch.setattr(visibility, "WIDE_GROUPS", False)
+        b = visibility._near_planes(keep, body, q, c, r, sv, n_j)
+        monkeypatch.setattr(visibility, "WIDE_GROUPS", True)
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+        seen["dense"] = seen.get("dense", 0) + len(keep) * sv.wide_normal.shape[1]
+        calls.append(len(a[0]))
+        return a
+
+    near = visibility._PlaneTree.leaves_near
+
+    def counted(tree, r, rel, margin):
+        pi, leaf = near(tree, r, rel, margin)
+        seen["computed"] = seen.get("computed", 0) + len(pi) * tree.LEAF
+        return pi, leaf
+
+    monkeypatch.setattr(visibility._PlaneTree, "leaves_near", counted)
+    monkeypatch.setattr(visibility, "_near_planes_grouped", checked)
+    h = irradiance(sc, p, n, workers=1)
+    assert calls and sum(calls) > 100
+    assert seen["computed"] < 0.5 * seen["dense"], seen
+    monkeypatch.setattr(visibility, "WIDE_GROUPS", False)
+    assert np.array_equal(h, irradiance(sc, p, n, workers=1))
