@@ -244,6 +244,11 @@ def _descend(pairs_r, pairs_n, left, right, keep_leaf):
     return np.concatenate([r, r]), np.concatenate([left[n], right[n]])
 
 
+def _dot(a, b):
+    """Row-wise dot products of ``(N, 3)`` arrays."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
 def _leaf_points(leaves, order, lo, hi):
     """``(row, point)`` for every point of the kept leaves."""
     r = np.concatenate([x[0] for x in leaves]) if leaves else np.zeros(0, dtype=np.int64)
@@ -261,14 +266,16 @@ def _tree_support(uv, first, order, lo, hi, left, right, center, radius, nb, off
     m = len(nb)
     pr, pn = np.arange(m), np.zeros(m, dtype=np.int64)
     leaves = []
+    rep = uv[order[lo]]                     # a vertex of every sphere: its distance is a lower bound
+    low = np.full(m, -np.inf)               # the best vertex seen so far, per row
     while len(pr):
-        c = sign * ((center[pn] * nb[pr]).sum(axis=1) - off[pr])
-        low = np.full(m, -np.inf)
-        np.maximum.at(low, pr, c - radius[pn])
+        n_r = nb[pr]
+        c = sign * (_dot(center[pn], n_r) - off[pr])
+        np.maximum.at(low, pr, sign * (_dot(rep[pn], n_r) - off[pr]))
         ok = c + radius[pn] >= low[pr] - margin[pr]
         pr, pn = _descend(pr[ok], pn[ok], left, right, leaves)
     r, u = _leaf_points(leaves, order, lo, hi)
-    d = sign * ((uv[u] * nb[r]).sum(axis=1) - off[r])
+    d = sign * (_dot(uv[u], nb[r]) - off[r])
     top = np.full(m, -np.inf)
     np.maximum.at(top, r, d)
     at = d == top[r]
@@ -284,11 +291,11 @@ def _tree_above(uv, order, lo, hi, left, right, center, radius, nb, off, sign, f
     pr, pn = np.arange(m), np.zeros(m, dtype=np.int64)
     leaves = []
     while len(pr):
-        c = sign * ((center[pn] * nb[pr]).sum(axis=1) - off[pr])
+        c = sign * (_dot(center[pn], nb[pr]) - off[pr])
         ok = c + radius[pn] >= floor[pr]
         pr, pn = _descend(pr[ok], pn[ok], left, right, leaves)
     r, u = _leaf_points(leaves, order, lo, hi)
-    d = sign * ((uv[u] * nb[r]).sum(axis=1) - off[r])
+    d = sign * (_dot(uv[u], nb[r]) - off[r])
     ok = d >= floor[r]
     return r[ok], u[ok]
 
