@@ -115,8 +115,10 @@ def solid_columns(body: Bodies, occ: Bodies, face_ptr: np.ndarray, face_occ: np.
     Per (body, solid): the face holding the vertex farthest along (against) the body's normal decides
     when its flag is True; otherwise every vertex is within the tests' tolerance of the plane on that
     side, and only the faces with a vertex within a bound ``T`` of every tolerance of the tests (see
-    below) can have the flag: those are tested exactly. O(n_b × solid vertices) multiply-adds for the
-    support search (blocks of ~2**22), O(n_b) exact pair tests for a convex solid.
+    below) can have the flag: those are tested exactly. Small solids: O(n_b × solid vertices)
+    multiply-adds for the support search (blocks of ~2**22); from ``SUPPORT_TREE_FROM`` padded vertices
+    on, both searches go through a tree of bounding spheres (:func:`_tree_columns`; on a sphere about
+    O(√V) nodes per body). O(n_b) exact pair tests for a convex solid.
     """
     n_b, n_s = len(body.counts), len(face_ptr) - 1
     fp = np.zeros((n_b, n_s), dtype=bool)
