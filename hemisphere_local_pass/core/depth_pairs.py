@@ -115,8 +115,10 @@ def solid_columns(body: Bodies, occ: Bodies, face_ptr: np.ndarray, face_occ: np.
     Per (body, solid): the face holding the vertex farthest along (against) the body's normal decides
     when its flag is True; otherwise every vertex is within the tests' tolerance of the plane on that
     side, and only the faces with a vertex within a bound ``T`` of every tolerance of the tests (see
-    below) can have the flag: those are tested exactly. O(n_b × solid vertices) multiply-adds for the
-    support search (blocks of ~2**22), O(n_b) exact pair tests for a convex solid.
+    below) can have the flag: those are tested exactly. Small solids: O(n_b × solid vertices)
+    multiply-adds for the support search (blocks of ~2**22); from ``SUPPORT_TREE_FROM`` padded vertices
+    on, both searches go through a tree of bounding spheres (:func:`_tree_columns`; on a sphere about
+    O(√V) nodes per body). O(n_b) exact pair tests for a convex solid.
     """
     n_b, n_s = len(body.counts), len(face_ptr) - 1
     fp = np.zeros((n_b, n_s), dtype=bool)
@@ -134,6 +136,9 @@ def solid_columns(body: Bodies, occ: Bodies, face_ptr: np.ndarray, face_occ: np.
         # plus the rounding of the pruning distances themselves
         reach = np.linalg.norm(centers[s] - o0, axis=1) + radii[s]
         t_bound = 2.0 * (coef * reach + body.noise + occ.noise[faces].max()) + 1e-12 * reach
+        if SUPPORT_TREE_FROM is not None and len(pts) >= SUPPORT_TREE_FROM:
+            _tree_columns(body, occ, faces, f_k, pts, o0 - centers[s], reach, t_bound, fp[:, s], fn[:, s])
+            continue
         step = max(1, (1 << 22) // len(pts))
         for a in range(0, n_b, step):
             rows = np.arange(a, min(n_b, a + step))
@@ -152,6 +157,149 @@ def solid_columns(body: Bodies, occ: Bodies, face_ptr: np.ndarray, face_occ: np.
                         got[rest[np.unique(ri[hit])]] = True
                 table[rows, s] = got
     return fp, fn
+
+
+#: solids with at least this many (padded) vertices search their support vertex and their faces near a
+#: plane in a tree of bounding spheres (:func:`_tree_columns`, O(log V) per body) instead of against every
+#: vertex (O(V) per body); None: never. Both give the same columns bit for bit (the column is the OR over
+#: the solid's faces of exact pair tests either way; the search only chooses which faces are tested).
+SUPPORT_TREE_FROM: int | None = 512
+
+_LEAF = 8
+
+
+def _sphere_tree(uv: np.ndarray):
+    """A binary tree of bounding spheres over the points ``uv (U, 3)``: ``(order, lo, hi, left, right,
+    center, radius)`` — node i holds ``uv[order[lo[i]:hi[i]]]``; children ``left/right`` (-1 at leaves,
+    at most ``_LEAF`` points); ``center`` the points' box centre, ``radius`` their largest distance to it."""
+    order = np.arange(len(uv))
+    lo, hi, left, right = [0], [len(uv)], [-1], [-1]
+    stack = [0]
+    while stack:
+        i = stack.pop()
+        a, b = lo[i], hi[i]
+        if b - a <= _LEAF:
+            continue
+        seg = uv[order[a:b]]
+        axis = int(np.argmax(seg.max(axis=0) - seg.min(axis=0)))
+        m = (b - a) // 2
+        part = np.argpartition(seg[:, axis], m, kind="introselect")
+        order[a:b] = order[a:b][part]
+        for c0, c1 in ((a, a + m), (a + m, b)):
+            lo.append(c0), hi.append(c1), left.append(-1), right.append(-1)
+            stack.append(len(lo) - 1)
+        left[i], right[i] = len(lo) - 2, len(lo) - 1
+    lo, hi = np.array(lo), np.array(hi)
+    center = np.empty((len(lo), 3))
+    radius = np.empty(len(lo))
+    for i in range(len(lo)):
+        seg = uv[order[lo[i]:hi[i]]]
+        center[i] = 0.5 * (seg.min(axis=0) + seg.max(axis=0))
+        radius[i] = np.sqrt(((seg - center[i]) ** 2).sum(axis=1).max())
+    return order, lo, hi, np.array(left), np.array(right), center, radius
+
+
+def _tree_columns(body, occ, faces, f_k, pts, rel0, reach, t_bound, col_pos, col_neg, step: int = 4096):
+    """:func:`solid_columns` for one solid through a tree of bounding spheres over its distinct vertices:
+    per body and side, a branch-and-bound search for the support vertex (the largest signed distance;
+    ties: the vertex's first appearance in ``pts``, as ``np.argmax``), its face's exact pair test, and
+    where that is False, the faces with a vertex at signed distance ``>= -t_bound`` (found by pruning the
+    spheres entirely below it), tested exactly. Writes ``col_pos``, ``col_neg (n_b,)``."""
+    uv, first, inv = np.unique(pts, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    by_vertex = np.argsort(inv, kind="stable")                     # padded slots grouped by vertex
+    v_ptr = np.concatenate([[0], np.cumsum(np.bincount(inv, minlength=len(uv)))])
+    v_face = by_vertex // f_k                                      # local face of every slot
+    order, lo, hi, left, right, center, radius = _sphere_tree(uv)
+    scale = float(np.abs(pts).max()) + 1.0
+    radius = radius * (1 + 1e-9) + 1e-12 * scale
+    n_b = len(body.counts)
+    for a in range(0, n_b, step):
+        rows = np.arange(a, min(n_b, a + step))
+        nb = body.normals[rows]
+        off = (rel0[rows] * nb).sum(axis=1)                        # (b,)
+        margin = 1e-12 * reach[rows]                               # rounding of the pruning distances
+        for sign, col_out, col in ((1.0, col_pos, 2), (-1.0, col_neg, 3)):
+            best = _tree_support(uv, first, order, lo, hi, left, right, center, radius, nb, off, sign, margin)
+            got = pair_flags(body, rows, occ, faces[best // f_k])[col]
+            rest = np.flatnonzero(~got)
+            if len(rest):
+                rr, vv = _tree_above(uv, order, lo, hi, left, right, center, radius, nb[rest], off[rest], sign,
+                                     -t_bound[rows[rest]] - margin[rest])
+                if len(rr):
+                    cnt = v_ptr[vv + 1] - v_ptr[vv]
+                    ri = np.repeat(rr, cnt)
+                    slot = np.arange(len(ri)) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(v_ptr[vv], cnt)
+                    fi = v_face[slot]
+                    key = np.unique(ri * len(faces) + fi)
+                    ri, fi = key // len(faces), key % len(faces)
+                    hit = pair_flags(body, rows[rest[ri]], occ, faces[fi])[col]
+                    got[rest[np.unique(ri[hit])]] = True
+            col_out[rows] = got
+
+
+def _descend(pairs_r, pairs_n, left, right, keep_leaf):
+    """Children of the kept internal nodes; the kept leaves appended to ``keep_leaf``."""
+    leaf = left[pairs_n] < 0
+    keep_leaf.append((pairs_r[leaf], pairs_n[leaf]))
+    r, n = pairs_r[~leaf], pairs_n[~leaf]
+    return np.concatenate([r, r]), np.concatenate([left[n], right[n]])
+
+
+def _dot(a, b):
+    """Row-wise dot products of ``(N, 3)`` arrays."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def _leaf_points(leaves, order, lo, hi):
+    """``(row, point)`` for every point of the kept leaves."""
+    r = np.concatenate([x[0] for x in leaves]) if leaves else np.zeros(0, dtype=np.int64)
+    n = np.concatenate([x[1] for x in leaves]) if leaves else np.zeros(0, dtype=np.int64)
+    cnt = hi[n] - lo[n]
+    rep = np.repeat(r, cnt)
+    pos = np.arange(len(rep)) - np.repeat(np.cumsum(cnt) - cnt, cnt) + np.repeat(lo[n], cnt)
+    return rep, order[pos]
+
+
+def _tree_support(uv, first, order, lo, hi, left, right, center, radius, nb, off, sign, margin):
+    """Per row, the index in ``pts`` of the support vertex along ``sign nb`` (signed distance
+    ``sign (v . n - off)``; ties: the smallest first appearance), by branch and bound: a sphere is dropped
+    when its upper bound is below another sphere's lower bound of the same row (by more than ``margin``)."""
+    m = len(nb)
+    pr, pn = np.arange(m), np.zeros(m, dtype=np.int64)
+    leaves = []
+    rep = uv[order[lo]]                     # a vertex of every sphere: its distance is a lower bound
+    low = np.full(m, -np.inf)               # the best vertex seen so far, per row
+    while len(pr):
+        n_r = nb[pr]
+        c = sign * (_dot(center[pn], n_r) - off[pr])
+        np.maximum.at(low, pr, sign * (_dot(rep[pn], n_r) - off[pr]))
+        ok = c + radius[pn] >= low[pr] - margin[pr]
+        pr, pn = _descend(pr[ok], pn[ok], left, right, leaves)
+    r, u = _leaf_points(leaves, order, lo, hi)
+    d = sign * (_dot(uv[u], nb[r]) - off[r])
+    top = np.full(m, -np.inf)
+    np.maximum.at(top, r, d)
+    at = d == top[r]
+    idx = np.full(m, np.iinfo(np.int64).max)
+    np.minimum.at(idx, r[at], first[u[at]])
+    return idx
+
+
+def _tree_above(uv, order, lo, hi, left, right, center, radius, nb, off, sign, floor):
+    """``(row, vertex)`` pairs with signed distance ``sign (v . n - off) >= floor[row]`` (a superset by
+    the rounding: the pruning keeps a sphere whose upper bound reaches ``floor``)."""
+    m = len(nb)
+    pr, pn = np.arange(m), np.zeros(m, dtype=np.int64)
+    leaves = []
+    while len(pr):
+        c = sign * (_dot(center[pn], nb[pr]) - off[pr])
+        ok = c + radius[pn] >= floor[pr]
+        pr, pn = _descend(pr[ok], pn[ok], left, right, leaves)
+    r, u = _leaf_points(leaves, order, lo, hi)
+    d = sign * (_dot(uv[u], nb[r]) - off[r])
+    ok = d >= floor[r]
+    return r[ok], u[ok]
 
 
 def ball_pairs(group_a, center_a, radius_a, group_b, center_b, radius_b, big: float):

@@ -275,9 +275,8 @@ def _convex_solid(grp, vertices, counts, normals, tilt, noise, owners):
     radius = float(np.linalg.norm(pts - center, axis=1).max())
     size = 2.0 * radius
     g_noise = COORD_EPS * float(np.abs(pts).max())
-    outs = _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise)
-    if outs is None:
-        return None
+    # the edges and the hole first: independent of the normals, cheap, and they reject a group that is not
+    # closed (an open UV sphere) before the convexity search (same answer: both must pass)
     local = {o: i for i, o in enumerate(grp)}
     ea, eb, ef, eg = [], [], [], []
     boundary = []
@@ -314,6 +313,9 @@ def _convex_solid(grp, vertices, counts, normals, tilt, noise, owners):
         if np.abs(d_b).max() > tol_h or d_all.max() > tol_h or d_all.min() >= -_MARGIN * tol_h:
             return None
         hole = (hn, hp)
+    outs = _outward(grp, vertices, counts, normals, tilt, pts, size, g_noise)
+    if outs is None:
+        return None
     return (list(grp), np.array(outs), hole,
             (np.array(ea), np.array(eb), np.array(ef, dtype=np.int64), np.array(eg, dtype=np.int64)),
             center, radius)

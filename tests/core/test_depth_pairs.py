@@ -22,14 +22,17 @@ import numpy as np
 import pytest
 from scenes_for_tests import cornell_box, random_box_room, random_occluded_scene, split_box
 
-from hemisphere_local_pass.core import Scene, culling, form_factors
+from hemisphere_local_pass.core import Scene, culling, depth_pairs, form_factors
 from hemisphere_local_pass.core.depth_pairs import ball_pairs
 from hemisphere_local_pass.core.rowops import unpack_rows
 from hemisphere_local_pass.scenes import uv_sphere
 
 
-def _sphere(outside=False, extra=False):
+def _sphere(outside=False, extra=False, closed=False):
     v, p = uv_sphere(16, 8)
+    if closed:                                  # exact poles: one point each, the sphere is a convex solid
+        v = np.asarray(v, dtype=np.float64).copy()
+        v[np.abs(v) < 1e-12] = 0.0
     if not outside:
         p = [f[::-1] for f in p]
     if extra:
@@ -52,6 +55,9 @@ def _scenes(rng):
     out["sphere_in"] = _sphere()
     out["sphere_out"] = _sphere(outside=True)
     out["sphere+box+quad"] = _sphere(extra=True)
+    out["ball_in"] = _sphere(closed=True)
+    out["ball_out"] = _sphere(outside=True, closed=True)
+    out["ball+box+quad"] = _sphere(extra=True, closed=True)
     return out
 
 
@@ -66,9 +72,11 @@ def _both(monkeypatch, v, p):
 
 
 @pytest.mark.parametrize("name", ["cornell", "split_box", "box_room", "random+duplicates", "sphere_in",
-                                  "sphere_out", "sphere+box+quad"])
+                                  "sphere_out", "sphere+box+quad", "ball_in", "ball_out", "ball+box+quad"])
 def test_per_pair_equals_tables(monkeypatch, rng, name):
     v, p = _scenes(rng)[name]
+    if name.startswith("ball"):                 # the solids' columns through the tree search (every solid)
+        monkeypatch.setattr(depth_pairs, "SUPPORT_TREE_FROM", 0)
     dense, lazy = _both(monkeypatch, v, p)
     t, d = dense._occluders, lazy._occluders
     assert t.depth is None and d.depth is not None and d.beyond_pos is None
@@ -96,12 +104,28 @@ def test_per_pair_equals_tables(monkeypatch, rng, name):
     d_pts = np.random.default_rng(5).normal(size=(12, 3))
     d_pts /= np.linalg.norm(d_pts, axis=1, keepdims=True)
     lo, hi = np.asarray(v).min(axis=0), np.asarray(v).max(axis=0)
-    if name.startswith("sphere"):
-        pts, nrm = (3.0 if name == "sphere_out" else 0.9) * d_pts, -d_pts
+    if name.startswith(("sphere", "ball")):
+        pts, nrm = (3.0 if name.endswith("_out") else 0.9) * d_pts, -d_pts
     else:
         pts = lo + (hi - lo) * np.random.default_rng(6).uniform(0.05, 0.95, size=(12, 3))
         nrm = d_pts
     assert np.array_equal(form_factors(lazy, pts, nrm, workers=1), form_factors(dense, pts, nrm, workers=1))
+
+
+@pytest.mark.parametrize("name", ["cornell", "box_room", "ball_in", "ball_out", "ball+box+quad"])
+def test_solid_columns_tree_equals_dense(monkeypatch, rng, name):
+    """The tree search of the support vertex and the near faces gives the dense search's columns."""
+    v, p = _scenes(rng)[name]
+    monkeypatch.setattr(culling, "PER_PAIR_DEPTH_FROM", 0)
+    got = []
+    for tree_from in (None, 0):
+        monkeypatch.setattr(depth_pairs, "SUPPORT_TREE_FROM", tree_from)
+        sc = Scene.from_polygons(v, p, np.full((len(p), 3), 0.5))
+        d = culling.build_occluders(sc).depth
+        got.append((d.solid_front_pos, d.solid_front_neg, d.solid_reach_pos, d.solid_reach_neg))
+    assert got[0][0].shape[1] > 0
+    for a, b in zip(*got):
+        assert np.array_equal(a, b)
 
 
 def test_ball_pairs_finds_every_meeting_pair_once():
