@@ -27,7 +27,7 @@ import numpy as np
 
 from .depth_pairs import Bodies, DepthPairs, ball_pairs, beyond_lists, pair_flags, solid_columns
 from .inner_solids import inner_solids
-from .rowops import pack_bits, unique_rows
+from .rowops import components, pack_bits, unique_rows
 from .scene import Scene, plane_uncertainty
 from .solids import Solids, build_solids, join_solids, no_solids
 from .tolerances import CONVEXITY_EPS, COORD_EPS, PLANARITY_EPS, PLANE_EPS
@@ -163,27 +163,6 @@ class Occluders:
         return len(self.vol_radii)
 
 
-def _components(n: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Connected components of the graph on ``n`` nodes with edges ``u, v (E,)``: ``(n,)`` the lowest
-    node of each node's component (vectorised union–find: hook roots to the lower root, then pointer
-    jumping; O(E log n))."""
-    parent = np.arange(n)
-    while len(u):
-        pu, pv = parent[u], parent[v]
-        lo, hi = np.minimum(pu, pv), np.maximum(pu, pv)
-        link = lo != hi
-        if not link.any():
-            break
-        u, v, lo, hi = u[link], v[link], lo[link], hi[link]
-        np.minimum.at(parent, hi, lo)           # roots only (every node points at its root here)
-        while True:
-            up = parent[parent]
-            if np.array_equal(up, parent):
-                break
-            parent = up
-    return parent
-
-
 def _merged_faces(scene: Scene, *, cores: bool = False):
     """Merge coplanar, edge-connected convex polygons that tile one convex polygon (see the module doc).
 
@@ -237,7 +216,7 @@ def _merged_faces(scene: Scene, *, cores: bool = False):
     both = (fwd_n > 0) & (fwd_n < all_n)
     run_first = np.flatnonzero(new_run)
     link = both[run] & ~new_run
-    root = _components(n, c_poly[srt][run_first[run[link]]], c_poly[srt][link])
+    root = components(n, c_poly[srt][run_first[run[link]]], c_poly[srt][link])
     comp_first = np.full(n, np.iinfo(np.int64).max)
     np.minimum.at(comp_first, root[order], pos[order])
     comp_size = np.bincount(root[order], minlength=n)

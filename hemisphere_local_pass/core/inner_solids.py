@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rowops import unique_rows
+from .rowops import components, unique_rows
 from .solids import Solids, no_solids
 from .tolerances import COORD_EPS
 
@@ -48,25 +48,6 @@ GROUP_ANGLE = 1e-3
 #: the polytope's faces lie this fraction of the surface's size inside the group planes' worst vertex
 INSET = 1e-7
 _EPS = np.finfo(np.float64).eps
-
-
-def _components(n, u, v):
-    """Connected components of ``n`` nodes with edges ``u, v``: the lowest node of each (pointer jumping)."""
-    parent = np.arange(n)
-    while len(u):
-        pu, pv = parent[u], parent[v]
-        lo, hi = np.minimum(pu, pv), np.maximum(pu, pv)
-        link = lo != hi
-        if not link.any():
-            break
-        u, v, lo, hi = u[link], v[link], lo[link], hi[link]
-        np.minimum.at(parent, hi, lo)
-        while True:
-            up = parent[parent]
-            if np.array_equal(up, parent):
-                break
-            parent = up
-    return parent
 
 
 def inner_solids(scene, members: np.ndarray, n_o: int, *, min_occluders: int = 8) -> Solids:
@@ -92,7 +73,7 @@ def inner_solids(scene, members: np.ndarray, n_o: int, *, min_occluders: int = 8
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     srt = np.lexsort((hi, lo))
     same = (lo[srt][1:] == lo[srt][:-1]) & (hi[srt][1:] == hi[srt][:-1])
-    root = _components(n, c_poly[srt][1:][same], c_poly[srt][:-1][same])
+    root = components(n, c_poly[srt][1:][same], c_poly[srt][:-1][same])
     c_root = root[c_poly]
     occ_per = np.zeros(n, dtype=np.int64)
     pair = np.unique(np.stack([root[reps], members[reps]], axis=1), axis=0)

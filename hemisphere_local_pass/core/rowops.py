@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["at2", "any_rows", "bit_at", "max_abs_rows", "nonzero_rows", "pack_bits", "sides", "sum_rows", "take_rows",
-           "unique_rows", "unpack_rows"]
+__all__ = ["at2", "any_rows", "bit_at", "components", "max_abs_rows", "nonzero_rows", "pack_bits", "sides", "sum_rows",
+           "take_rows", "unique_rows", "unpack_rows"]
 
 
 def any_rows(b: np.ndarray) -> np.ndarray:
@@ -109,3 +109,24 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     inverse = np.empty(len(a), dtype=np.int64)
     inverse[order] = np.cumsum(new) - 1
     return s[new], inverse
+
+
+def components(n: int, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Connected components of the graph on ``n`` nodes with edges ``u, v (E,)``: ``(n,)`` the lowest
+    node of each node's component (vectorised union–find: hook roots to the lower root, then pointer
+    jumping; O(E log n))."""
+    parent = np.arange(n)
+    while len(u):
+        pu, pv = parent[u], parent[v]
+        lo, hi = np.minimum(pu, pv), np.maximum(pu, pv)
+        link = lo != hi
+        if not link.any():
+            break
+        u, v, lo, hi = u[link], v[link], lo[link], hi[link]
+        np.minimum.at(parent, hi, lo)           # roots only (every node points at its root here)
+        while True:
+            up = parent[parent]
+            if np.array_equal(up, parent):
+                break
+            parent = up
+    return parent
