@@ -134,6 +134,24 @@ def mesh_state(scene):
     return out
 
 
+def esc_panel(scene, cells):
+    """A horizontal ``cells x cells``-quad panel of zero radiosity floating mid-room, linked to ``scene``."""
+    import numpy as np
+
+    xs = np.linspace(0.3, 0.7, cells + 1)  # the unit box; z = 0.8 is above both blocks, below the light
+    verts = [(float(x), float(y), 0.8) for y in xs for x in xs]
+    faces = [(j * (cells + 1) + i, j * (cells + 1) + i + 1, (j + 1) * (cells + 1) + i + 1, (j + 1) * (cells + 1) + i)
+             for j in range(cells) for i in range(cells)]
+    mesh = bpy.data.meshes.new("HLP_esc_panel")
+    mesh.from_pydata(verts, [], faces)
+    mesh.update()
+    attr = mesh.attributes.new(scene.hlp_settings.attribute, 'FLOAT_COLOR', 'FACE')
+    attr.data.foreach_set("color", [0.0] * (4 * len(faces)))
+    ob = bpy.data.objects.new("HLP_esc_panel", mesh)
+    scene.collection.objects.link(ob)
+    return ob
+
+
 def alive(pid) -> bool:
     """Whether process ``pid`` exists and is not a zombie (Linux /proc)."""
     try:
@@ -246,7 +264,11 @@ def session():
     log("modal", started=list(started), first=first, second=second, finished=ok, shown=shown,
         summary=run.report.summary() if run.report else None, seconds=time.time() - t0)
 
-    # 3. Esc cancels a bake
+    # 3. Esc cancels a bake. The box's 208 receivers (face corners) take ~0.1 s with 2 workers, which can
+    # end before the first 0.05 s poll (CI, 2026-12-02: done_at_esc == total); a 64 x 64-quad panel
+    # floating mid-room (16,384 more corners: 100 chunks of 166) makes the bake last seconds, so Esc lands
+    # mid-run (one chunk, 166 of 16,592, done at the key press here). The panel is removed after this stage.
+    panel = esc_panel(scene, cells=64)
     for ob in scene.objects:
         ob.select_set(ob.type == 'MESH')
     before = mesh_state(scene)
@@ -269,6 +291,9 @@ def session():
     log("esc", running_before=ok, done_at_esc=done_at_esc, total=total, cancelled=cancelled,
         unchanged=mesh_state(scene) == before, latency=t_cancelled - t_esc, settle=settle_bake, workers=len(bake_pids),
         workers_left=[pid for pid in bake_pids if alive(pid)])
+    mesh = panel.data
+    bpy.data.objects.remove(panel)
+    bpy.data.meshes.remove(mesh)
 
     # 3b. F12 with the engine, Esc mid-render: test_break() stops it, the finished bands stay
     from hemisphere_local_pass.blender import engine
