@@ -17,8 +17,9 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from dataclasses import dataclass
 
-from .stderr_lines import StderrProgress, error_line
+from .stderr_lines import StderrProgress, error_line, run_command
 
 COMMAND = "hemisphere_local_pass"
 SUBCOMMANDS = ("render", "merge", "solve")
@@ -143,69 +144,71 @@ def cli_main(argv) -> int:
         from .first_pass import cli_main as solve_main
 
         return solve_main(list(argv)[1:])
-    parser = build_parser()
-    args = parser.parse_args(list(argv))
-    prefix = "hemisphere_local_pass: "
-    checkpoint = ""
-    try:
-        if args.command == "merge":
-            from .outputs import merge_exr
+    args = build_parser().parse_args(list(argv))
+    if args.command == "merge":
+        return run_command(lambda: _merge(args), cancelled="cancelled",  # files are replaced whole or not at all
+                           interrupted=lambda: "interrupted (Ctrl-C); no file was left half-written; rerun merge")
+    kept = {"checkpoint": ""}  # the checkpoint's path, known once the output is checked
 
-            done = {"written": [], "refused": []}
-            path = merge_exr(args.tiles, args.output, overwrite=args.overwrite, preview=not args.no_preview,
-                             report=done)
-            print(f"{prefix}merged {len(args.tiles)} tile(s) into {path}")
-            for written in done["written"]:
-                print(f"{prefix}wrote {written}")
-            for message in done["refused"]:
-                print(f"{prefix}not written: {message}", file=sys.stderr)
-            return 0
-        import bpy
+    def interrupted():
+        where = kept["checkpoint"] if os.path.isfile(kept["checkpoint"]) else None
+        what = f"finished chunks are kept in {where}" if where else "no chunk had finished (nothing to keep)"
+        return f"interrupted (Ctrl-C); {what}; rerun with --resume to continue"
 
-        from .blend_output import check_blend_output, save_blend
-        from .pipeline import run_local_pass, scene_settings
+    return run_command(lambda: _render(args, kept), interrupted=interrupted,
+                       cancelled="cancelled; finished chunks are saved, rerun with --resume")
 
-        mode = args.mode
-        settings = scene_settings(bpy.context.scene)
-        if mode is None:
-            mode = str(settings.mode).lower() if settings is not None else "pixels"
-        if args.output is None:
-            raise ValueError("render needs --output FILE.exr (pixels mode) or --output FILE.blend (vertices mode)")
-        output = args.output
-        if mode == "vertices":
-            output = check_blend_output(output, args.overwrite)
-        elif args.objects:
-            raise ValueError("--objects applies to vertices mode only (--mode vertices)")
-        from .output_paths import checkpoint_path, resolve
 
-        checkpoint = checkpoint_path(resolve(output))
-        reporter = None if args.quiet else StderrProgress()
-        report = run_local_pass(
-            output=output, mode=mode, attribute=args.attribute, region=_region(args.region),
-            tile=args.tile, resume=args.resume, samples=args.samples, missing=args.missing,
-            progress=reporter, status=None if reporter is None else reporter.stage, preview=not args.no_preview,
-            overwrite=args.overwrite, objects=args.objects, radiance_attribute=args.radiance_attribute,
-            irradiance_attribute=args.irradiance_attribute, workers=args.workers,
-            tolerance=args.tolerance,
-        )
-        if mode == "vertices":
-            report.outputs.append(save_blend(output))
-    except KeyboardInterrupt:
-        where = checkpoint if os.path.isfile(checkpoint) else None
-        kept = f"finished chunks are kept in {where}" if where else "no chunk had finished (nothing to keep)"
-        print(f"{prefix}interrupted (Ctrl-C); {kept}; rerun with --resume to continue", file=sys.stderr)
-        return 130
-    except Exception as exc:  # one line, non-zero: the command is for scripts and render farms
-        from ..core import Cancelled
+@dataclass
+class _Merged:
+    """What ``merge`` reports (:func:`.stderr_lines.run_command`)."""
 
-        if isinstance(exc, Cancelled):
-            print(f"{prefix}cancelled; finished chunks are saved, rerun with --resume", file=sys.stderr)
-            return 130
-        print(f"{prefix}{error_line(exc)}", file=sys.stderr)
-        return 1
-    print(f"{prefix}{report.summary()}")
-    for path in report.outputs:
-        print(f"{prefix}wrote {path}")
-    for message in report.refused:
-        print(f"{prefix}not written: {message}", file=sys.stderr)
-    return 0
+    tiles: int
+    path: str
+    outputs: list
+    refused: list
+
+    def summary(self) -> str:
+        return f"merged {self.tiles} tile(s) into {self.path}"
+
+
+def _merge(args) -> _Merged:
+    from .outputs import merge_exr
+
+    done = {"written": [], "refused": []}
+    path = merge_exr(args.tiles, args.output, overwrite=args.overwrite, preview=not args.no_preview, report=done)
+    return _Merged(len(args.tiles), path, done["written"], done["refused"])
+
+
+def _render(args, kept):
+    """The ``render`` command's job: the local pass of the open file (:func:`.pipeline.run_local_pass`)."""
+    import bpy
+
+    from .blend_output import check_blend_output, save_blend
+    from .output_paths import checkpoint_path, resolve
+    from .pipeline import run_local_pass, scene_settings
+
+    mode = args.mode
+    settings = scene_settings(bpy.context.scene)
+    if mode is None:
+        mode = str(settings.mode).lower() if settings is not None else "pixels"
+    if args.output is None:
+        raise ValueError("render needs --output FILE.exr (pixels mode) or --output FILE.blend (vertices mode)")
+    output = args.output
+    if mode == "vertices":
+        output = check_blend_output(output, args.overwrite)
+    elif args.objects:
+        raise ValueError("--objects applies to vertices mode only (--mode vertices)")
+    kept["checkpoint"] = checkpoint_path(resolve(output))
+    reporter = None if args.quiet else StderrProgress()
+    report = run_local_pass(
+        output=output, mode=mode, attribute=args.attribute, region=_region(args.region),
+        tile=args.tile, resume=args.resume, samples=args.samples, missing=args.missing,
+        progress=reporter, status=None if reporter is None else reporter.stage, preview=not args.no_preview,
+        overwrite=args.overwrite, objects=args.objects, radiance_attribute=args.radiance_attribute,
+        irradiance_attribute=args.irradiance_attribute, workers=args.workers,
+        tolerance=args.tolerance,
+    )
+    if mode == "vertices":
+        report.outputs.append(save_blend(output))
+    return report

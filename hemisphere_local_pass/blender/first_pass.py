@@ -317,9 +317,11 @@ def cli_main(argv) -> int:
     """``solve`` sub-command: returns the exit code (0 done, 1 error, 130 interrupted; nothing saved then)."""
     import bpy
 
+    from .stderr_lines import run_command
+
     args = build_parser().parse_args(list(argv))
-    prefix = "hemisphere_local_pass: "
-    try:
+
+    def job():
         output = os.path.abspath(args.output)
         if not output.lower().endswith(".blend"):
             raise ValueError(f"--output must name a .blend file, got '{args.output}'")
@@ -332,20 +334,7 @@ def cli_main(argv) -> int:
         from .blend_output import save_blend
 
         report.outputs.append(save_blend(output))
-    except KeyboardInterrupt:
-        print(f"{prefix}interrupted; nothing was written", file=sys.stderr)
-        return 130
-    except Exception as exc:  # one line, non-zero
-        from ..core import Cancelled
+        return report
 
-        if isinstance(exc, Cancelled):
-            print(f"{prefix}cancelled; nothing was written", file=sys.stderr)
-            return 130
-        from .stderr_lines import error_line
-
-        print(f"{prefix}{error_line(exc)}", file=sys.stderr)
-        return 1
-    print(f"{prefix}{report.summary()}")
-    for path in report.outputs:
-        print(f"{prefix}wrote {path}")
-    return 0
+    return run_command(job, interrupted=lambda: "interrupted; nothing was written",
+                       cancelled="cancelled; nothing was written")

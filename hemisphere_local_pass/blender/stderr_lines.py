@@ -1,5 +1,6 @@
 """What the commands (``render``, ``merge``, ``solve``) write on stderr: progress lines while a job
-runs (:class:`StderrProgress`) and the one line of a failed command (:func:`error_line`)."""
+runs (:class:`StderrProgress`), the one line of a failed command (:func:`error_line`), and the exit
+codes every command shares (:func:`run_command`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,10 @@ import sys
 import threading
 import time
 
-__all__ = ["StderrProgress", "error_line"]
+__all__ = ["PREFIX", "StderrProgress", "error_line", "run_command"]
+
+#: what starts every line the commands print
+PREFIX = "hemisphere_local_pass: "
 
 
 class StderrProgress:
@@ -34,7 +38,7 @@ class StderrProgress:
     def _write(self, line):
         with self.lock:
             self.last = time.perf_counter()
-            self.stream.write(f"hemisphere_local_pass: {line}\n")
+            self.stream.write(f"{PREFIX}{line}\n")
             self.stream.flush()
 
     def stage(self, text):
@@ -90,3 +94,33 @@ def error_line(exc: BaseException) -> str:
     msg = text.splitlines()[0] if text else type(exc).__name__
     kind = "" if isinstance(exc, (ValueError, OSError)) else f"{type(exc).__name__}: "
     return f"error: {kind}{msg}"
+
+
+def run_command(job, *, interrupted, cancelled) -> int:
+    """Run one command's ``job()`` and return its exit code, the same way for every command.
+
+    ``job()`` returns a report with ``summary()``, ``outputs`` (paths written) and optionally ``refused``
+    (messages of outputs not written). Printed: the summary and one ``wrote PATH`` line per output on
+    stdout, the refusals on stderr; exit 0. Ctrl-C: ``interrupted()`` (a callable: what is kept is known
+    only then) on stderr, exit 130; the job's ``Cancelled``: ``cancelled`` on stderr, exit 130; any
+    other error: its one line (:func:`error_line`) on stderr, exit 1 — the commands are for scripts and
+    render farms, so every failure exits non-zero."""
+    try:
+        report = job()
+    except KeyboardInterrupt:
+        print(f"{PREFIX}{interrupted()}", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        from ..core import Cancelled
+
+        if isinstance(exc, Cancelled):
+            print(f"{PREFIX}{cancelled}", file=sys.stderr)
+            return 130
+        print(f"{PREFIX}{error_line(exc)}", file=sys.stderr)
+        return 1
+    print(f"{PREFIX}{report.summary()}")
+    for path in report.outputs:
+        print(f"{PREFIX}wrote {path}")
+    for message in getattr(report, "refused", ()):
+        print(f"{PREFIX}not written: {message}", file=sys.stderr)
+    return 0
