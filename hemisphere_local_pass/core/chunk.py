@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import far_field as far_field_module
 from .clear_tiles import TileEdges, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
-from .far_field import NodeEdges, clear_node_test, node_edges
+from .far_field import NodeEdges, ProxyCredit, clear_node_test, node_edges
 from .form_factor import contour_integral
 from .hierarchy import TileHierarchy, build_hierarchy, visit_tiles
 from .parallel import Cancelled
@@ -205,9 +206,11 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     if far_field:
         ne = scene_node_edges(scene, occ)
         free = None if limit is None else ~limit.any(axis=1)
+        use_credit = far_tolerance is not None and far_field_module.PROXY_CREDIT
+        credit = ProxyCredit(len(points), free) if use_credit else None
 
         def clear_test(ep, en):
-            ok, side = clear_node_test(ne, h, points, normals, ep, en, far_tolerance)
+            ok, side = clear_node_test(ne, h, points, normals, ep, en, far_tolerance, credit)
             return (ok if free is None else ok & free[ep]), side
 
     tiles = visit_tiles(h, occ, sv, table, cov, points, normals, wanted, clear_test)

@@ -62,7 +62,8 @@ from .rowops import unique_rows
 from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["FarFieldStats", "NodeEdges", "clear_node_test", "far_field_irradiance", "node_edges", "proxy_scene"]
+__all__ = ["FarFieldStats", "NodeEdges", "ProxyCredit", "clear_node_test", "far_field_irradiance", "node_edges",
+           "promote_proxies", "proxy_scene"]
 
 #: a node gets its own welded list only when it has at most this fraction of its children's edges
 SHRINK = 0.75
@@ -276,7 +277,7 @@ def node_edges(scene, occ, h, te) -> NodeEdges:
                      tilt, noise, dn, d0, node_fits(scene, occ, h, te.eligible))
 
 
-def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
+def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None, credit=None):
     """For (receiver, inner node) entries ``ep, en (E,)`` whose face has a volume instance and whose list
     of cutting volumes is empty: ``(clear (E,) bool, side (E,) float ±1)`` (side 0 where not tested).
 
@@ -315,11 +316,68 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None):
     ok_s = geo & ne.usable[en]
     cand = np.flatnonzero(geo & lin)
     if len(cand):
-        ok_s[cand] = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand],
-                                      LINEAR_SHARE * np.asarray(tolerance))[0]
+        share = LINEAR_SHARE * np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
+        fits, b, floor = linear_node_test(ne.fit, h, points, normals, ep[cand], en[cand], share, return_floor=True)
+        if credit is not None:
+            fits = credit.spend(ne, h, ep[cand], en[cand], fits, b, floor, share)
+        ok_s[cand] = fits
     ok[sel] = ok_s
     side[sel] = np.sign(d)
     return ok, side
+
+
+class ProxyCredit:
+    """Per receiver of one traversal: the proxies' bounds spent so far ``spent (m, 3)`` and the lower bounds
+    of their form factors ``floor (m,)``; ``free (m,)`` the receivers whose nodes may be taken (or None).
+
+    The proxies a receiver takes see disjoint parts of its hemisphere, so those still to come (each
+    within ``share × F_lower``, :func:`linear_node_test`) sum to at most ``share × (1 − Σ_taken F_v) <=
+    share × (1 − floor)``. While ``spent <= share × floor`` (per channel), every proxy taken and to come
+    sums to at most ``share``: a node whose bound exceeds its own share may be taken on the credit that
+    nodes below theirs left (:meth:`spend`), the coarsest first (the traversal is breadth first)."""
+
+    def __init__(self, m: int, free=None):
+        self.spent = np.zeros((m, 3))
+        self.floor = np.zeros(m)
+        self.free = free
+
+    def spend(self, ne, h, ep, en, fits, bound, floor, share):
+        """``fits (E,)`` with the nodes taken on credit added (only nodes without a welded list: the far
+        field takes those as given, :func:`far_field_irradiance`); the taken ones are booked."""
+        m = len(self.floor)
+        if self.free is not None:
+            fits = fits & self.free[ep]
+        for c in range(3):
+            self.spent[:, c] += np.bincount(ep[fits], weights=bound[fits, c], minlength=m)
+        self.floor += np.bincount(ep[fits], weights=floor[fits], minlength=m)
+        sc = np.flatnonzero(~fits & np.isfinite(bound).all(axis=1) & ~ne.usable[en]
+                            & (True if self.free is None else self.free[ep]))
+        if not len(sc):
+            return fits
+        excess = bound[sc] - share[None, :] * floor[sc, None]                      # (S, 3)
+        room = share[None, :] * self.floor[:, None] * (1.0 - SAFETY) - self.spent  # (m, 3)
+        work = (h.last_tile[en[sc]] - h.first_tile[en[sc]]).astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            key = np.where(share > 0, np.maximum(excess, 0.0) / np.where(share > 0, share, 1.0), np.inf).max(axis=1)
+        order = np.lexsort((key / work, ep[sc]))
+        sc, excess = sc[order], excess[order]
+        rp = ep[sc]
+        first = np.flatnonzero(np.r_[True, rp[1:] != rp[:-1]])
+        size = np.diff(np.r_[first, len(sc)])
+        run = np.cumsum(excess, axis=0)
+        run -= np.repeat(np.r_[np.zeros((1, 3)), run[first[1:] - 1]], size, axis=0)
+        # every prefix within the credit (the accepted set as a whole then is)
+        bad = ~(run <= room[rp]).all(axis=1)
+        grp = np.repeat(np.arange(len(first)), size)
+        stop = np.full(len(first), len(sc))
+        np.minimum.at(stop, grp[bad], np.flatnonzero(bad))
+        acc = sc[np.arange(len(sc)) < stop[grp]]
+        for c in range(3):
+            self.spent[:, c] += np.bincount(ep[acc], weights=bound[acc, c], minlength=m)
+        self.floor += np.bincount(ep[acc], weights=floor[acc], minlength=m)
+        fits = fits.copy()
+        fits[acc] = True
+        return fits
 
 
 def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, tolerance, te=None):
@@ -360,6 +418,14 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         sel, lb = cand[take], lb[take]
         lin = np.zeros(len(point), dtype=bool)
         lin[sel] = True
+        if len(sel) and PROMOTE_ROUNDS:
+            # whole groups of siblings as their parent's proxy, where the receiver's budget allows
+            pb = np.zeros((len(point), 3))
+            pb[sel] = lb
+            point, node, side, lin, pb = promote_proxies(ne, h, point, node, side, lin, pb, points, normals,
+                                                         LINEAR_SHARE * tol, te)
+            sel = np.flatnonzero(lin)
+            lb = pb[sel]
         if len(sel):
             hl, rnd = linear_node_irradiance(ne.fit, point[sel], node[sel], points, normals)
             for c in range(3):
@@ -455,6 +521,154 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
     # the proxies' radiance bound: π Σ ½ range F over clear proxies, = ½ Σ side V t (>= 0 exactly)
     bound += ROUNDING * 0.5 * mag + 0.5 * np.abs(vsum) * (1.0 + SAFETY)
     return out + h_lin, bound + b_lin, skipped, summed, n_lin
+
+
+#: the traversal takes nodes on the credit their receiver's earlier proxies left (:class:`ProxyCredit`)
+PROXY_CREDIT = True
+#: rounds of :func:`promote_proxies` (0: none); each lifts groups of siblings one level
+PROMOTE_ROUNDS = 0
+#: cost of a proxy per rectangle, in welded edge terms (measured: a rectangle's 3×3 rule and its share of
+#: the proxy's set-up cost about what 8 edge terms cost)
+PROXY_COST = 8.0
+#: :func:`promote_proxies` counts (receiver, parent) keys in a dense table up to this many slots
+DENSE_KEYS = 2**23
+
+
+def _pair_cost(ne, h, node, lin, te):
+    """(P,) cost of summing pairs ``node (P,)``: a proxy :data:`PROXY_COST` per rectangle, a list its edges
+    (a tile: the fewer of its welded and tile edges)."""
+    cost = (ne.ptr[node + 1] - ne.ptr[node]).astype(np.float64)
+    if te is not None:
+        tile = node < h.n_tiles
+        n_te = np.diff(te.edge_ptr)[np.minimum(node, len(te.edge_ptr) - 2)]
+        cost = np.where(tile & (n_te > 0), np.minimum(cost, n_te), cost)
+    rects = np.diff(ne.fit.rect_ptr)[node]
+    return np.where(lin, PROXY_COST * rects, cost)
+
+
+def promote_proxies(ne, h, point, node, side, lin, pbound, points, normals, budget, te=None):
+    """Replace groups of sibling pairs by their parent's linear proxy, spending the receivers' unused budget.
+
+    The pairs ``(point, node, side) (P,)`` are disjoint clear nodes and tiles of each receiver (wholly
+    visible, uncut, P clearly off their plane); ``lin (P,)`` marks those taken as proxies, with bounds
+    ``pbound (P, 3)`` (0 elsewhere). When every child of a node v is a pair of receiver P (the same side),
+    every member below v is wholly visible and unclipped from P, so v may be summed as its proxy, with the
+    bound of :func:`linear_node_test` (``inf`` where v is not wholly in front of P); the error of the sum
+    then changes by at most ``Δ = bound_v − Σ_children bound`` (the children summed over their lists have
+    bound 0 here: their skipped edges are bounded later from what is left). Per receiver, such groups are
+    taken greedily, smallest ``max_c Δ_c / budget_c`` per edge term saved first, while ``Σ bounds`` of its
+    proxies stays within ``budget (3,)`` in every channel: the proxies' bounds then sum to at most the
+    budget whatever the individual bounds are (no form-factor share is needed). Repeated up to
+    :data:`PROMOTE_ROUNDS` times (a promoted parent can complete its own parent's group).
+
+    Returns the new ``point, node, side, lin, pbound``.
+    """
+    m = len(points)
+    fit = ne.fit
+    n_nodes = len(h.radii)
+    n_child = np.diff(h.child_ptr)
+    parent_of = np.full(n_nodes, -1, dtype=np.int64)
+    parent_of[h.child] = np.repeat(np.arange(n_nodes), n_child)
+    lim = budget * (1.0 - SAFETY)
+    no_v = _weights(ne)[3]                  # (a uniform-face proxy's bound is carried by its list's V)
+    used = np.zeros((m, 3))
+    for c in range(3):
+        used[:, c] = np.bincount(point, weights=pbound[:, c], minlength=m)
+    new_keys = None
+    for _ in range(PROMOTE_ROUNDS):
+        room = lim[None, :] - used                                                   # (m, 3)
+        par = parent_of[node]
+        if new_keys is None:
+            cand = np.flatnonzero((par >= 0) & fit.ok[np.maximum(par, 0)] & no_v[node])
+        else:
+            # after the first round only the groups of the nodes just promoted can have become complete
+            cand = np.flatnonzero(par >= 0)
+            cand = cand[np.isin(point[cand] * n_nodes + par[cand], new_keys)]
+            cand = cand[fit.ok[par[cand]] & no_v[node[cand]]]
+        if not len(cand):
+            break
+        # groups (receiver, parent) with every child present on one side
+        key = point[cand] * n_nodes + par[cand]
+        if m * n_nodes <= DENSE_KEYS:
+            # (receiver, parent) keys counted densely: no sort
+            dense = np.bincount(key, minlength=m * n_nodes)
+            uk = np.flatnonzero(dense)
+            slot = np.zeros(m * n_nodes, dtype=np.int64)
+            slot[uk] = np.arange(len(uk))
+            inv, cnt = slot[key], dense[uk]
+        else:
+            uk, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+            inv = inv.reshape(-1)
+        gp, gn = uk // n_nodes, uk % n_nodes
+        # sides are ±1: one side for all when their sum is ± the count
+        ssum = np.bincount(inv, weights=side[cand], minlength=len(uk))
+        full = (cnt == n_child[gn]) & (np.abs(ssum) == cnt)
+        if not full.any():
+            break
+        cost = _pair_cost(ne, h, node[cand], lin[cand], te)
+        saved = np.bincount(inv, weights=cost, minlength=len(uk)) - PROXY_COST * np.diff(fit.rect_ptr)[gn]
+        child_b = np.stack([np.bincount(inv, weights=pbound[cand, c], minlength=len(uk)) for c in range(3)], 1)
+        g = np.flatnonzero(full & (saved > 0))
+        # a necessary condition first (one distance and one product per group): the test's residual and
+        # sawtooth terms alone, ``|δ| K / r_min⁵`` (<= its bound), must fit the room with the children's
+        # bounds given back (1 % slack for rounding: a rejection is certain, a pass only runs the test)
+        rel_c = h.centers[gn[g]] - points[gp[g]]
+        rmin = np.sqrt(np.einsum("ij,ij->i", rel_c, rel_c)) - h.radii[gn[g]]
+        cu = fit.centre[gn[g]] - points[gp[g]]
+        dlt = np.abs(np.einsum("ij,ij->i", fit.normal[gn[g]], cu))
+        kk = 14.0 * fit.resid[gn[g]] * fit.inertia[gn[g], None] + 28.0 * fit.gnorm[gn[g]] * fit.saw[gn[g], None]
+        low = (dlt / np.where(rmin > 0, rmin, 1.0) ** 5)[:, None] * kk
+        g = g[(rmin > 0) & (0.99 * low <= room[gp[g]] + child_b[g]).all(axis=1)]
+        if not len(g):
+            break
+        _, b_par = linear_node_test(fit, h, points, normals, gp[g], gn[g], budget)
+        delta = np.maximum(b_par - child_b[g], 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(delta > 0, delta / np.where(lim > 0, lim, 0.0)[None, :], 0.0).max(axis=1)
+        ok = np.isfinite(b_par).all(axis=1) & np.isfinite(rel)
+        g, b_par, delta, rel = g[ok], b_par[ok], delta[ok], rel[ok]
+        if not len(g):
+            break
+        # greedy per receiver: cheapest bound per saved edge first, the prefix that fits its room
+        order = np.lexsort((rel / saved[g], gp[g]))
+        g, b_par, delta = g[order], b_par[order], delta[order]
+        rp = gp[g]
+        first = np.flatnonzero(np.r_[True, rp[1:] != rp[:-1]])
+        run = np.cumsum(delta, axis=0)
+        run -= np.repeat(np.r_[np.zeros((1, 3)), run[first[1:] - 1]], np.diff(np.r_[first, len(g)]), axis=0)
+        acc = (run <= room[rp]).all(axis=1)
+        # a prefix only (a later group that fits after one that did not would break the greedy order)
+        bad = np.flatnonzero(~acc)
+        stop = np.full(len(g), len(g))
+        if len(bad):
+            grp = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(g)]))
+            fb = np.full(len(first), len(g))
+            np.minimum.at(fb, grp[bad], bad)
+            stop = fb[grp]
+        acc = np.arange(len(g)) < stop
+        if not acc.any():
+            break
+        g, b_par = g[acc], b_par[acc]
+        gone = np.zeros(len(uk), dtype=bool)
+        gone[g] = True
+        drop = np.zeros(len(point), dtype=bool)
+        drop[cand[gone[inv]]] = True
+        # the parent takes its children's side (one of them: all equal)
+        gside = np.zeros(len(uk))
+        gside[inv] = side[cand]
+        keep = ~drop
+        point = np.concatenate([point[keep], gp[g]])
+        node = np.concatenate([node[keep], gn[g]])
+        side = np.concatenate([side[keep], gside[g]])
+        lin = np.concatenate([lin[keep], np.ones(len(g), dtype=bool)])
+        pbound = np.concatenate([pbound[keep], b_par])
+        for c in range(3):
+            used[:, c] += np.bincount(gp[g], weights=b_par[:, c] - child_b[g, c], minlength=m)
+        gpar = parent_of[gn[g]]
+        new_keys = np.unique(gp[g][gpar >= 0] * n_nodes + gpar[gpar >= 0])
+        if not len(new_keys):
+            break
+    return point, node, side, lin, pbound
 
 
 def _tile_sums(te, point, tile, side, points, normals, m):
@@ -837,7 +1051,7 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
     return out
 
 
-def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
+def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, return_floor=False):
     """Whether receiver ``ep`` may take node ``en``'s linear proxy, and the proxy's bound ``(fits (E,),
     bound (E, 3))`` (inf where the node is not wholly in front of P), for (receiver, node) entries whose
     node is wholly visible and above the horizon.
@@ -864,7 +1078,8 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
     (``r_c = |c − P|``). The proxy is taken when this is at most the tolerance times a lower bound of the
     node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the box's lowest
     corner above P's horizon, ``r_max`` the sphere's farthest point) and ``A k(c) − 14 |δ| I / (π
-    r_min⁵)`` (Taylor about the centroid). The proxies a receiver takes see disjoint parts of its
+    r_min⁵)`` (Taylor about the centroid; with ``return_floor`` it is returned too, (E,), 0 where the
+    node is not wholly in front of P). The proxies a receiver takes see disjoint parts of its
     hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
     """
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
@@ -893,8 +1108,11 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance):
     f_box = fit.area[en] * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4)
     nu = np.einsum("ij,ij->i", normals[ep], cu)
     f_mid = delta * (fit.area[en] * nu / rc**4 - 14.0 * fit.inertia[en] / r5) / np.pi
-    allowed = tol[None, :] * np.maximum(f_box, f_mid * (1.0 - 1e-12))[:, None]
+    floor = np.maximum(f_box, f_mid * (1.0 - 1e-12))
+    allowed = tol[None, :] * floor[:, None]
     ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
+    if return_floor:
+        return ok, np.where(geo[:, None], bound, np.inf), np.where(geo, np.maximum(floor, 0.0), 0.0)
     return ok, np.where(geo[:, None], bound, np.inf)
 
 

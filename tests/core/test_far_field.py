@@ -398,3 +398,46 @@ def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
     h0, _, st0 = _check(scene, pts, nrm, rel_tol=1e-4)
     assert sum(calls) == 0
     assert (np.abs(h1 - h0) <= st0.error_bound + st1.error_bound).all()
+
+
+def _hard_smooth_box(kind):
+    """The smooth box of :func:`_smooth_box` made hard for the budgeted proxies: a bright patch among dim
+    polygons, a steep gradient, a low-contrast chequerboard on the back wall."""
+    box, scene = _smooth_box(40)
+    c = np.array([box.vertices[p].mean(axis=0) for p in box.polygons])
+    rad = scene.poly_radiance.copy()
+    if kind == "patch":
+        rad[np.argmin(((c - [0.5, 0.999, 0.5]) ** 2).sum(axis=1))] += 50.0
+    elif kind == "steep":
+        rad *= 1.0 + 40.0 * np.clip(c[:, 0] - 0.45, 0.0, 0.1)[:, None]
+    else:
+        back = c[:, 1] > 1 - 1e-9
+        rad[back] *= 1.0 + 0.05 * ((np.arange(len(c)) % 2) * 2 - 1)[back, None]
+    return box, box.scene(radiance=rad)
+
+
+@pytest.mark.parametrize("kind", ["patch", "steep", "chequer"])
+@pytest.mark.parametrize("rounds", [0, 6])
+def test_credit_and_promoted_proxies_stay_within_the_bound(kind, rounds, monkeypatch):
+    """Nodes taken on their receiver's credit (:class:`far_field.ProxyCredit`) and sibling groups promoted
+    to their parent's proxy (:func:`far_field.promote_proxies`) spend the budget of other nodes: error <=
+    bound <= tolerance per receiver and channel, on scenes built to break it, receivers on the walls (1e-6
+    off, next to the nodes) and inside; the credit takes more nodes whole than the shares alone."""
+    from hemisphere_local_pass.core import far_field
+
+    box, scene = _hard_smooth_box(kind)
+    rng = np.random.default_rng(5)
+    pick = rng.choice(box.n_polygons, size=40)
+    c = np.array([box.vertices[box.polygons[i]].mean(axis=0) for i in pick])
+    nrm = box.normals()[pick]
+    pts = np.concatenate([c + 1e-6 * nrm, c[:15] + 0.3 * nrm[:15]])
+    nrm = np.concatenate([nrm, nrm[:15]])
+    monkeypatch.setattr(far_field, "PROMOTE_ROUNDS", rounds)
+    for rel_tol in (1e-4, 1e-2):
+        _, _, st = _check(scene, pts, nrm, rel_tol=rel_tol)
+        assert st.linear_proxies.sum() > 0
+    monkeypatch.setattr(far_field, "PROXY_CREDIT", False)
+    _, _, st0 = _check(scene, pts, nrm, rel_tol=1e-2)
+    assert st.clear_nodes.sum() >= st0.clear_nodes.sum()
+    if rounds == 0:
+        assert st.clear_nodes.sum() > st0.clear_nodes.sum()      # the credit was used (not vacuous)
