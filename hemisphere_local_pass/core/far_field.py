@@ -63,7 +63,7 @@ from .scene import Scene
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["FarFieldStats", "NodeEdges", "ProxyCredit", "clear_node_test", "far_field_irradiance", "node_edges",
-           "promote_proxies", "proxy_scene"]
+           "proxy_scene"]
 
 #: a node gets its own welded list only when it has at most this fraction of its children's edges
 SHRINK = 0.75
@@ -418,14 +418,6 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
         sel, lb = cand[take], lb[take]
         lin = np.zeros(len(point), dtype=bool)
         lin[sel] = True
-        if len(sel) and PROMOTE_ROUNDS:
-            # whole groups of siblings as their parent's proxy, where the receiver's budget allows
-            pb = np.zeros((len(point), 3))
-            pb[sel] = lb
-            point, node, side, lin, pb = promote_proxies(ne, h, point, node, side, lin, pb, points, normals,
-                                                         LINEAR_SHARE * tol, te)
-            sel = np.flatnonzero(lin)
-            lb = pb[sel]
         if len(sel):
             hl, rnd = linear_node_irradiance(ne.fit, point[sel], node[sel], points, normals)
             for c in range(3):
@@ -525,152 +517,6 @@ def far_field_irradiance(ne: NodeEdges, h, point, node, side, points, normals, t
 
 #: the traversal takes nodes on the credit their receiver's earlier proxies left (:class:`ProxyCredit`)
 PROXY_CREDIT = True
-#: rounds of :func:`promote_proxies` (0: none); each lifts groups of siblings one level
-PROMOTE_ROUNDS = 0
-#: cost of a proxy per rectangle, in welded edge terms (measured: a rectangle's 3×3 rule and its share of
-#: the proxy's set-up cost about what 8 edge terms cost)
-PROXY_COST = 8.0
-#: :func:`promote_proxies` counts (receiver, parent) keys in a dense table up to this many slots
-DENSE_KEYS = 2**23
-
-
-def _pair_cost(ne, h, node, lin, te):
-    """(P,) cost of summing pairs ``node (P,)``: a proxy :data:`PROXY_COST` per rectangle, a list its edges
-    (a tile: the fewer of its welded and tile edges)."""
-    cost = (ne.ptr[node + 1] - ne.ptr[node]).astype(np.float64)
-    if te is not None:
-        tile = node < h.n_tiles
-        n_te = np.diff(te.edge_ptr)[np.minimum(node, len(te.edge_ptr) - 2)]
-        cost = np.where(tile & (n_te > 0), np.minimum(cost, n_te), cost)
-    rects = np.diff(ne.fit.rect_ptr)[node]
-    return np.where(lin, PROXY_COST * rects, cost)
-
-
-def promote_proxies(ne, h, point, node, side, lin, pbound, points, normals, budget, te=None):
-    """Replace groups of sibling pairs by their parent's linear proxy, spending the receivers' unused budget.
-
-    The pairs ``(point, node, side) (P,)`` are disjoint clear nodes and tiles of each receiver (wholly
-    visible, uncut, P clearly off their plane); ``lin (P,)`` marks those taken as proxies, with bounds
-    ``pbound (P, 3)`` (0 elsewhere). When every child of a node v is a pair of receiver P (the same side),
-    every member below v is wholly visible and unclipped from P, so v may be summed as its proxy, with the
-    bound of :func:`linear_node_test` (``inf`` where v is not wholly in front of P); the error of the sum
-    then changes by at most ``Δ = bound_v − Σ_children bound`` (the children summed over their lists have
-    bound 0 here: their skipped edges are bounded later from what is left). Per receiver, such groups are
-    taken greedily, smallest ``max_c Δ_c / budget_c`` per edge term saved first, while ``Σ bounds`` of its
-    proxies stays within ``budget (3,)`` in every channel: the proxies' bounds then sum to at most the
-    budget whatever the individual bounds are (no form-factor share is needed). Repeated up to
-    :data:`PROMOTE_ROUNDS` times (a promoted parent can complete its own parent's group).
-
-    Returns the new ``point, node, side, lin, pbound``.
-    """
-    m = len(points)
-    fit = ne.fit
-    n_nodes = len(h.radii)
-    n_child = np.diff(h.child_ptr)
-    parent_of = np.full(n_nodes, -1, dtype=np.int64)
-    parent_of[h.child] = np.repeat(np.arange(n_nodes), n_child)
-    lim = budget * (1.0 - SAFETY)
-    no_v = _weights(ne)[3]                  # (a uniform-face proxy's bound is carried by its list's V)
-    used = np.zeros((m, 3))
-    for c in range(3):
-        used[:, c] = np.bincount(point, weights=pbound[:, c], minlength=m)
-    new_keys = None
-    for _ in range(PROMOTE_ROUNDS):
-        room = lim[None, :] - used                                                   # (m, 3)
-        par = parent_of[node]
-        if new_keys is None:
-            cand = np.flatnonzero((par >= 0) & fit.ok[np.maximum(par, 0)] & no_v[node])
-        else:
-            # after the first round only the groups of the nodes just promoted can have become complete
-            cand = np.flatnonzero(par >= 0)
-            cand = cand[np.isin(point[cand] * n_nodes + par[cand], new_keys)]
-            cand = cand[fit.ok[par[cand]] & no_v[node[cand]]]
-        if not len(cand):
-            break
-        # groups (receiver, parent) with every child present on one side
-        key = point[cand] * n_nodes + par[cand]
-        if m * n_nodes <= DENSE_KEYS:
-            # (receiver, parent) keys counted densely: no sort
-            dense = np.bincount(key, minlength=m * n_nodes)
-            uk = np.flatnonzero(dense)
-            slot = np.zeros(m * n_nodes, dtype=np.int64)
-            slot[uk] = np.arange(len(uk))
-            inv, cnt = slot[key], dense[uk]
-        else:
-            uk, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
-            inv = inv.reshape(-1)
-        gp, gn = uk // n_nodes, uk % n_nodes
-        # sides are ±1: one side for all when their sum is ± the count
-        ssum = np.bincount(inv, weights=side[cand], minlength=len(uk))
-        full = (cnt == n_child[gn]) & (np.abs(ssum) == cnt)
-        if not full.any():
-            break
-        cost = _pair_cost(ne, h, node[cand], lin[cand], te)
-        saved = np.bincount(inv, weights=cost, minlength=len(uk)) - PROXY_COST * np.diff(fit.rect_ptr)[gn]
-        child_b = np.stack([np.bincount(inv, weights=pbound[cand, c], minlength=len(uk)) for c in range(3)], 1)
-        g = np.flatnonzero(full & (saved > 0))
-        # a necessary condition first (one distance and one product per group): the test's residual and
-        # sawtooth terms alone, ``|δ| K / r_min⁵`` (<= its bound), must fit the room with the children's
-        # bounds given back (1 % slack for rounding: a rejection is certain, a pass only runs the test)
-        rel_c = h.centers[gn[g]] - points[gp[g]]
-        rmin = np.sqrt(np.einsum("ij,ij->i", rel_c, rel_c)) - h.radii[gn[g]]
-        cu = fit.centre[gn[g]] - points[gp[g]]
-        dlt = np.abs(np.einsum("ij,ij->i", fit.normal[gn[g]], cu))
-        kk = 14.0 * fit.resid[gn[g]] * fit.inertia[gn[g], None] + 28.0 * fit.gnorm[gn[g]] * fit.saw[gn[g], None]
-        low = (dlt / np.where(rmin > 0, rmin, 1.0) ** 5)[:, None] * kk
-        g = g[(rmin > 0) & (0.99 * low <= room[gp[g]] + child_b[g]).all(axis=1)]
-        if not len(g):
-            break
-        _, b_par = linear_node_test(fit, h, points, normals, gp[g], gn[g], budget)
-        delta = np.maximum(b_par - child_b[g], 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.where(delta > 0, delta / np.where(lim > 0, lim, 0.0)[None, :], 0.0).max(axis=1)
-        ok = np.isfinite(b_par).all(axis=1) & np.isfinite(rel)
-        g, b_par, delta, rel = g[ok], b_par[ok], delta[ok], rel[ok]
-        if not len(g):
-            break
-        # greedy per receiver: cheapest bound per saved edge first, the prefix that fits its room
-        order = np.lexsort((rel / saved[g], gp[g]))
-        g, b_par, delta = g[order], b_par[order], delta[order]
-        rp = gp[g]
-        first = np.flatnonzero(np.r_[True, rp[1:] != rp[:-1]])
-        run = np.cumsum(delta, axis=0)
-        run -= np.repeat(np.r_[np.zeros((1, 3)), run[first[1:] - 1]], np.diff(np.r_[first, len(g)]), axis=0)
-        acc = (run <= room[rp]).all(axis=1)
-        # a prefix only (a later group that fits after one that did not would break the greedy order)
-        bad = np.flatnonzero(~acc)
-        stop = np.full(len(g), len(g))
-        if len(bad):
-            grp = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(g)]))
-            fb = np.full(len(first), len(g))
-            np.minimum.at(fb, grp[bad], bad)
-            stop = fb[grp]
-        acc = np.arange(len(g)) < stop
-        if not acc.any():
-            break
-        g, b_par = g[acc], b_par[acc]
-        gone = np.zeros(len(uk), dtype=bool)
-        gone[g] = True
-        drop = np.zeros(len(point), dtype=bool)
-        drop[cand[gone[inv]]] = True
-        # the parent takes its children's side (one of them: all equal)
-        gside = np.zeros(len(uk))
-        gside[inv] = side[cand]
-        keep = ~drop
-        point = np.concatenate([point[keep], gp[g]])
-        node = np.concatenate([node[keep], gn[g]])
-        side = np.concatenate([side[keep], gside[g]])
-        lin = np.concatenate([lin[keep], np.ones(len(g), dtype=bool)])
-        pbound = np.concatenate([pbound[keep], b_par])
-        for c in range(3):
-            used[:, c] += np.bincount(gp[g], weights=b_par[:, c] - child_b[g, c], minlength=m)
-        gpar = parent_of[gn[g]]
-        new_keys = np.unique(gp[g][gpar >= 0] * n_nodes + gpar[gpar >= 0])
-        if not len(new_keys):
-            break
-    return point, node, side, lin, pbound
-
-
 def _tile_sums(te, point, tile, side, points, normals, m):
     """``Σ side W_e t_e`` of clear tiles ``(point, tile, side) (P,)`` over their tile edges, as the exact path
     sums them (:func:`.clear_tiles.clear_irradiance`: the same edge terms, the same per-pair sums, bit for

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .gradient import LINE_MATCH_EPS, _occluder_edges, _plane_matches
+from .gradient import _EPS, LINE_MATCH_EPS, _cross, _dot, _norm, _occluder_edges, _plane_matches
 from .local_pass import _emitter_mask, _occluders, _prepare_receivers, visible_fragments_with_ff
 from .scene import Scene
 from .tolerances import COORD_EPS
@@ -49,25 +49,6 @@ SOURCE, OCCLUDER, OWN, HORIZON = 0, 1, 2, 3
 VERTEX_MATCH = 1e-8
 #: the structure's H at P must agree with the fragments' own eq. 4 sum to this relative difference
 SELF_MATCH = 1e-11
-
-_EPS = np.finfo(np.float64).eps
-
-
-def _dot(a, b):
-    return np.einsum("...i,...i->...", a, b)
-
-
-def _cross(a, b):
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
-    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
-    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-    return out
-
-
-def _norm(a):
-    return np.sqrt(_dot(a, a))
-
 
 @dataclass
 class FragmentStructure:

@@ -314,6 +314,16 @@ def test_linear_prefilter_rejects_only_what_the_test_rejects(field):
     assert passed > 100
 
 
+def _wall_receivers(box, seed, n, inside=0, depth=0.0):
+    """Receivers at the centroids of ``n`` random polygons of ``box``, 1e-6 off them along their normals,
+    and the first ``inside`` of them again ``depth`` further in: (points (n + inside, 3), normals)."""
+    pick = np.random.default_rng(seed).choice(box.n_polygons, size=n)
+    c = np.array([box.vertices[box.polygons[i]].mean(axis=0) for i in pick])
+    nrm = box.normals()[pick]
+    pts = np.concatenate([c + 1e-6 * nrm, c[:inside] + depth * nrm[:inside]])
+    return pts, np.concatenate([nrm, nrm[:inside]])
+
+
 def _smooth_box(sub):
     """``cornell_box(sub)`` with a smooth radiance, different on every polygon (benchmarks' kind)."""
     box = cornell_box(sub)
@@ -331,12 +341,7 @@ def test_smooth_radiance_box_takes_linear_proxies_within_the_bound(rel_tol):
     clear nodes go as linear proxies; error <= bound <= tolerance; receivers on the walls (1e-6 off them,
     next to the nodes they see) and 0.2 inside."""
     box, scene = _smooth_box(40)
-    rng = np.random.default_rng(3)
-    pick = rng.choice(box.n_polygons, size=60)
-    c = np.array([box.vertices[box.polygons[i]].mean(axis=0) for i in pick])
-    nrm = box.normals()[pick]
-    pts = np.concatenate([c + 1e-6 * nrm, c[:20] + 0.2 * nrm[:20]])
-    nrm = np.concatenate([nrm, nrm[:20]])
+    pts, nrm = _wall_receivers(box, 3, 60, inside=20, depth=0.2)
     h, exact, st = _check(scene, pts, nrm, rel_tol=rel_tol)
     assert st.linear_proxies.sum() > 100
 
@@ -385,11 +390,7 @@ def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
 
     monkeypatch.setattr(far_field, "_tile_sums", spy)
     box, scene = _smooth_box(16)
-    rng = np.random.default_rng(5)
-    pick = rng.choice(box.n_polygons, size=40)
-    c = np.array([box.vertices[box.polygons[i]].mean(axis=0) for i in pick])
-    nrm = box.normals()[pick]
-    pts = c + 1e-6 * nrm
+    pts, nrm = _wall_receivers(box, 5, 40)
     h1, exact, st1 = _check(scene, pts, nrm, rel_tol=1e-4)
     n_plain = sum(calls)
     assert n_plain > 10 * len(pts)
@@ -417,27 +418,18 @@ def _hard_smooth_box(kind):
 
 
 @pytest.mark.parametrize("kind", ["patch", "steep", "chequer"])
-@pytest.mark.parametrize("rounds", [0, 6])
-def test_credit_and_promoted_proxies_stay_within_the_bound(kind, rounds, monkeypatch):
-    """Nodes taken on their receiver's credit (:class:`far_field.ProxyCredit`) and sibling groups promoted
-    to their parent's proxy (:func:`far_field.promote_proxies`) spend the budget of other nodes: error <=
-    bound <= tolerance per receiver and channel, on scenes built to break it, receivers on the walls (1e-6
-    off, next to the nodes) and inside; the credit takes more nodes whole than the shares alone."""
+def test_credit_proxies_stay_within_the_bound(kind, monkeypatch):
+    """Nodes taken on their receiver's credit (:class:`far_field.ProxyCredit`) spend the budget of other
+    nodes: error <= bound <= tolerance per receiver and channel, on scenes built to break it, receivers on
+    the walls (1e-6 off, next to the nodes) and inside; the credit takes more nodes whole than the shares
+    alone."""
     from hemisphere_local_pass.core import far_field
 
     box, scene = _hard_smooth_box(kind)
-    rng = np.random.default_rng(5)
-    pick = rng.choice(box.n_polygons, size=40)
-    c = np.array([box.vertices[box.polygons[i]].mean(axis=0) for i in pick])
-    nrm = box.normals()[pick]
-    pts = np.concatenate([c + 1e-6 * nrm, c[:15] + 0.3 * nrm[:15]])
-    nrm = np.concatenate([nrm, nrm[:15]])
-    monkeypatch.setattr(far_field, "PROMOTE_ROUNDS", rounds)
+    pts, nrm = _wall_receivers(box, 5, 40, inside=15, depth=0.3)
     for rel_tol in (1e-4, 1e-2):
         _, _, st = _check(scene, pts, nrm, rel_tol=rel_tol)
         assert st.linear_proxies.sum() > 0
     monkeypatch.setattr(far_field, "PROXY_CREDIT", False)
     _, _, st0 = _check(scene, pts, nrm, rel_tol=1e-2)
-    assert st.clear_nodes.sum() >= st0.clear_nodes.sum()
-    if rounds == 0:
-        assert st.clear_nodes.sum() > st0.clear_nodes.sum()      # the credit was used (not vacuous)
+    assert st.clear_nodes.sum() > st0.clear_nodes.sum()      # the credit was used (not vacuous)
