@@ -687,7 +687,8 @@ class NodeFits:
             affine radiance ``L_lin(x) = a + g·(x − c)`` fitted (area-weighted least squares) to the
             members' constant radiance at their centroids.
         resid: (N, 3) ``max_i |ε_i|``, ``ε_i = L_i − L_lin(c_i)`` at the members' centroids c_i;
-            gnorm: (N, 3) ``|g|``.
+            resid_moment: (N, 3) ``Σ_i |ε_i| ∫_i |x − c|² dA`` (at most ``max|ε| I``: the residual term
+            of the bound weighs each member's residual by its own moment); gnorm: (N, 3) ``|g|``.
         inertia: (N,) ``I = ∫ |x − c|² dA`` over the members; area: (N,) ``A``; jsum: (N, 3, 3)
             ``Σ_i J_i``, ``J_i = ∫_i (x − c_i)(x − c_i)ᵀ dA``; saw: (N,) ``Σ_i tr J_i (|c_i − c| + ρ_i / 2)``
             (``ρ_i`` member i's largest vertex distance from c_i).
@@ -714,6 +715,7 @@ class NodeFits:
     defect0: np.ndarray
     defect1: np.ndarray
     mismatch: np.ndarray
+    resid_moment: np.ndarray | None = None
     lmax: np.ndarray | None = None
     half_side: np.ndarray | None = None
 
@@ -770,7 +772,7 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
     out = NodeFits(np.zeros(n_nodes, dtype=bool), np.zeros((0, 4, 3)), np.zeros(n_nodes + 1, dtype=np.int64),
                    z3.copy(), z3.copy(), z3.copy(),
                    np.zeros((n_nodes, 3, 3)), z3.copy(), z3.copy(), np.zeros(n_nodes), np.zeros((n_nodes, 3, 3)),
-                   np.zeros(n_nodes), np.zeros(n_nodes), z3.copy(), z3.copy(), z3.copy())
+                   np.zeros(n_nodes), np.zeros(n_nodes), z3.copy(), z3.copy(), z3.copy(), z3.copy())
     if not len(mem_tree):
         return out
     # every node of a face in its root's frame: normal of the root's first member, e1 along that member's
@@ -839,7 +841,9 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
         # the members' own second moments: ∫ |x − c|², the sawtooth's sum Σ J_i and its remainder weight
         tr_i = np.trace(sec_p[mem], axis1=1, axis2=2)
         dcn = np.sqrt((dc ** 2).sum(axis=1))
-        inertia = np.add.reduceat(tr_i + ap * dcn**2, starts)
+        moment_i = tr_i + ap * dcn**2                                    # ∫_i |x − c|² dA (parallel axes)
+        inertia = np.add.reduceat(moment_i, starts)
+        res_moment = np.add.reduceat(np.abs(eps) * moment_i[:, None], starts)
         jsum = np.add.reduceat(sec_p[mem], starts)                                              # (B, 3, 3)
         saw = np.add.reduceat(tr_i * (dcn + 0.5 * rho_p[mem]), starts)
         # orthogonality defects as computed, plus their rounding
@@ -857,6 +861,7 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
         out.value[part] = a0
         out.grad[part] = e1p[:, :, None] * gq[:, None, 0, :] + e2p[:, :, None] * gq[:, None, 1, :]
         out.resid[part] = res
+        out.resid_moment[part] = res_moment
         out.gnorm[part] = gnorm
         out.inertia[part] = inertia
         out.jsum[part] = jsum
@@ -908,22 +913,26 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     ``L_i − L_lin(x) = ε_i − g·(x − c_i)``, so the error is, per channel,
 
     * ``π ∫ ε k``, ε piecewise constant with ``∫ ε = ∫ ε (x − c) = 0`` (the fit's normal equations):
-      ``= π ∫ ε (k − k(c) − ∇k(c)·(x − c))``, at most ``π max|ε| ½ H I``;
+      ``= π ∫ ε (k − k(c) − ∇k(c)·(x − c))``, at most ``π ½ H ∫ |ε| |x − c|² = π ½ H Σ_i |ε_i| ∫_i |x −
+      c|² dA`` (``resid_moment``; at most ``π max|ε| ½ H I``: a shadow edge's large ε weighs only its
+      own members' moments);
     * ``π Σ_i g·∫_i (x − c_i)(k(x) − k(c_i))`` minus the sawtooth term: Taylor about c_i to second order,
       then ``∇k(c_i) = ∇k(c) + O(H |c_i − c|)``: at most ``π |g| H Σ_i tr J_i (|c_i − c| + ρ_i / 2)``;
 
-    with ``H = 28 |δ| / (π r_min⁵)`` a bound on k's Hessian over the node's bounding sphere (every
-    segment used stays in it; ``r_min`` its distance from P): for unit v, ``|u|⁵ vᵀ ∇²((N·u)|u|^-4) v
-    = −8 (N·v)(û·v) − 4 cosθ + 24 cosθ (û·v)²``, at most ``8 + 20 = 28`` in magnitude; and
-    the rounding of the fit (``k <= |δ| / (π r³)``, ``|∇k| <= 3 |δ| / (π r⁴)`` at c) and the
-    rectangle's area beyond the members':
+    with ``H = κ |δ| / (π r_min⁵)`` a bound on k's Hessian in the node's plane over its bounding sphere
+    (every segment used lies in the plane and in the sphere; ``r_min`` its distance from P): for unit v,
+    ``|u|⁵ vᵀ ∇²((N·u)|u|^-4) v = −8 (N·v)(û·v) + cosθ (24 (û·v)² − 4)`` (``cosθ = N·û``); v in the plane
+    has ``|û·v| <= s``, ``s² = 1 − δ² / r_max²`` (û's component along the plane normal is ``δ / |u| >= δ /
+    r_max``), so ``κ = 8 s + max(4, 24 s² − 4)`` (:func:`_hessian_factor`): 4 head-on, at most ``8 + 20 =
+    28`` at grazing; and the rounding of the fit (``k <= |δ| / (π r³)``, ``|∇k| <= 3 |δ| / (π r⁴)`` at c)
+    and the rectangle's area beyond the members':
 
-        |error| <= |δ| (14 max|ε| I / r_min⁵ + 28 |g| saw / r_min⁵ + defect0 / r_c³ + 3 defect1 / r_c⁴
+        |error| <= |δ| (κ/2 resid_moment / r_min⁵ + κ |g| saw / r_min⁵ + defect0 / r_c³ + 3 defect1 / r_c⁴
                         + mismatch / r_min³) + the rule's error (:func:`_quadrature_bound`)
 
     (``r_c = |c − P|``). The proxy is taken when this is at most the tolerance times a lower bound of the
     node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the box's lowest
-    corner above P's horizon, ``r_max`` the sphere's farthest point) and ``A k(c) − 14 |δ| I / (π
+    corner above P's horizon, ``r_max`` the sphere's farthest point) and ``A k(c) − κ/2 |δ| I / (π
     r_min⁵)`` (Taylor about the centroid; with ``return_floor`` it is returned too, (E,), 0 where the
     node is not wholly in front of P). The proxies a receiver takes see disjoint parts of its
     hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
@@ -944,8 +953,9 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     rmin = np.where(ok, rmin, 1.0)
     rc = np.where(ok, rc, 1.0)
     r5 = rmin**5
-    bound = delta[:, None] * (14.0 * fit.resid[en] * (fit.inertia[en] / r5)[:, None]
-                              + 28.0 * fit.gnorm[en] * (fit.saw[en] / r5)[:, None]
+    kappa = _hessian_factor(delta, rmax)
+    bound = delta[:, None] * ((0.5 * kappa / r5)[:, None] * fit.resid_moment[en]
+                              + fit.gnorm[en] * (kappa * fit.saw[en] / r5)[:, None]
                               + fit.defect0[en] / (rc**3)[:, None] + 3.0 * fit.defect1[en] / (rc**4)[:, None]
                               + fit.mismatch[en] / (rmin**3)[:, None]) * (1.0 + SAFETY)
     bound += _quadrature_bound(fit, en, delta, rmin, rmax)
@@ -953,7 +963,7 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     # Hessian's remainder (the first-order term integrates to zero about the centroid)
     f_box = fit.area[en] * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4)
     nu = np.einsum("ij,ij->i", normals[ep], cu)
-    f_mid = delta * (fit.area[en] * nu / rc**4 - 14.0 * fit.inertia[en] / r5) / np.pi
+    f_mid = delta * (fit.area[en] * nu / rc**4 - 0.5 * kappa * fit.inertia[en] / r5) / np.pi
     floor = np.maximum(f_box, f_mid * (1.0 - 1e-12))
     allowed = tol[None, :] * floor[:, None]
     ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
@@ -962,28 +972,40 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     return ok, np.where(geo[:, None], bound, np.inf)
 
 
+def _hessian_factor(delta, rmax):
+    """(E,) ``κ = 8 s + max(4, 24 s² − 4)``, ``s² = 1 − (δ / r_max)²``: ``|u|⁵`` times a bound on the
+    in-plane Hessian of ``(N·u)|u|^-4`` over a node's bounding sphere (see :func:`linear_node_test`); 28
+    where the plane is seen edge on, 4 head on. Rounded up by a relative 1e-12."""
+    s2 = np.clip(1.0 - (delta / rmax) ** 2, 0.0, 1.0)
+    return (8.0 * np.sqrt(s2) + np.maximum(4.0, 24.0 * s2 - 4.0)) * (1.0 + 1e-12)
+
+
 def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
     """(E,) bool: entries that :func:`linear_node_test` could pass at ``tolerance`` (3,); False ones cannot.
 
-    A necessary condition at the cost of one distance per entry: of the test's bound, the residual and
-    sawtooth terms alone are ``|δ| K_c / r_min⁵`` (``K = 14 max|ε| I + 28 |g| saw``, per node), and the
-    form factor's lower bound is at most ``A |δ| / (π r_min³)`` (``h_min <= r_max``, ``N·u <= r_c``, and
-    ``r_c >= r_min``: the members and their centroid are in the node's bounding sphere), so passing needs
-    ``r_min² >= π K_c / (tol_c A)`` in every channel (per node, cached for the tolerance). The threshold
-    is relaxed by 1 % for its rounding: a False is certain, a True only means "run the test"."""
+    A necessary condition at the cost of two distances per entry: of the test's bound, the residual and
+    sawtooth terms alone are ``|δ| κ K_c / r_min⁵`` (``K = ½ resid_moment + |g| saw``, per node; κ the
+    Hessian factor of :func:`_hessian_factor`, from δ and r_max), and the form factor's lower bound is at
+    most ``A |δ| / (π r_min³)`` (``h_min <= r_max``, ``N·u <= r_c``, and ``r_c >= r_min``: the members and
+    their centroid are in the node's bounding sphere), so passing needs ``r_min² >= κ π K_c / (tol_c A)``
+    in every channel (``π K_c / (tol_c A)`` per node, cached for the tolerance). The threshold is relaxed
+    by 1 % for its rounding: a False is certain, a True only means "run the test"."""
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
     key = tol.tobytes()
     cached = getattr(fit, "_reach", None)
     if cached is None or cached[0] != key:
-        k = 14.0 * fit.resid * fit.inertia[:, None] + 28.0 * fit.gnorm * fit.saw[:, None]        # (N, 3)
+        k = 0.5 * fit.resid_moment + fit.gnorm * fit.saw[:, None]                              # (N, 3)
         with np.errstate(divide="ignore", invalid="ignore"):
             q = np.where(k > 0, k / tol[None, :], 0.0).max(axis=1)                             # inf: tol_c = 0
             r2 = np.where(fit.ok & (fit.area > 0), np.pi * q / np.where(fit.area > 0, fit.area, 1.0), np.inf)
         cached = (key, 0.99 * np.nan_to_num(r2, nan=np.inf))
         fit._reach = cached
     rel = h.centers[en] - points[ep]
-    rmin = np.sqrt(np.einsum("ij,ij->i", rel, rel)) - h.radii[en]
-    return (rmin > 0) & (rmin * rmin >= cached[1][en])
+    rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+    rmin = rs - h.radii[en]
+    delta = np.abs(np.einsum("ij,ij->i", fit.normal[en], fit.centre[en] - points[ep]))
+    # divided rather than multiplied: a finite threshold near the float maximum must not overflow
+    return (rmin > 0) & (rmin * rmin / _hessian_factor(delta, rs + h.radii[en]) >= cached[1][en])
 
 
 def _quadrature_bound(fit: NodeFits, en, delta, rmin, rmax):
@@ -1007,47 +1029,59 @@ def _quadrature_bound(fit: NodeFits, en, delta, rmin, rmax):
     return np.pi * (64.0 / 15.0) * m * (area * rho ** (-2.0 * QUAD_NODES) / (rho * rho - 1.0))[:, None]
 
 
-_QX, _QW = np.polynomial.legendre.leggauss(QUAD_NODES)
-
-
 def linear_node_irradiance(fit: NodeFits, point, node, points, normals):
     """The proxies of (receiver, node) pairs ``point, node (P,)``: ``π ∫ L_lin k dA`` over the node's
     rectangles by a :data:`QUAD_NODES`² Gauss–Legendre rule each, minus the sawtooth term ``π g·(Σ J_i)
     ∇k(c)`` (see :func:`linear_node_test`): ``(P, 3)``, and the rounding allowance ``(P, 3)`` (the rule's
-    own error is in :func:`_quadrature_bound`)."""
-    if not len(point):
-        return np.zeros((0, 3)), np.zeros((0, 3))
+    own error is in :func:`_quadrature_bound`). Pairs go :data:`PROXY_BATCH` at a time (the rule's
+    (pairs, n, n) arrays stay in cache)."""
+    h = np.zeros((len(point), 3))
+    allowance = np.zeros((len(point), 3))
+    for s in range(0, len(point), PROXY_BATCH):
+        e = min(len(point), s + PROXY_BATCH)
+        h[s:e], allowance[s:e] = _proxy_batch(fit, point[s:e], node[s:e], points, normals)
+    return h, allowance
+
+
+#: (receiver, node) pairs per batch of :func:`linear_node_irradiance`
+PROXY_BATCH = 4096
+_QX, _QW = np.polynomial.legendre.leggauss(QUAD_NODES)
+_QA = 0.5 * (_QX + 1.0)                                                     # the rule's nodes on [0, 1]
+_QW2 = 0.25 * np.outer(_QW, _QW).ravel()                                    # its weights (sum to 1), a-major
+# the weighted moments Σ w, Σ w a, Σ w b of the rule on the unit square, (n², 3)
+_QMOM = np.stack([_QW2, _QW2 * np.repeat(_QA, QUAD_NODES), _QW2 * np.tile(_QA, QUAD_NODES)], axis=1)
+
+
+def _proxy_batch(fit: NodeFits, point, node, points, normals):
+    """:func:`linear_node_irradiance` for one batch of pairs."""
+    coef, sides, len2, area, coef_abs = _rect_terms(fit)
     p = points[point]
     nn = normals[point]
     cu = fit.centre[node] - p
     delta = np.abs(np.einsum("ij,ij->i", fit.normal[node], cu))
-    # every pair's rectangles (a pair's are consecutive), QUAD_NODES² points each: x = r0 + a s1 + b s2
+    # every pair's rectangles (a pair's are consecutive)
     k, rid = expand(node, fit.rect_ptr, np.arange(len(fit.rect)))
-    rect = fit.rect[rid]
-    r0 = rect[:, 0] - p[k]
-    s1 = rect[:, 1] - rect[:, 0]
-    s2 = rect[:, 3] - rect[:, 0]
-    area = np.linalg.norm(np.cross(s1, s2), axis=1)
+    r0 = fit.rect[rid, 0] - p[k]
+    sd = sides[rid]                                                         # (R, 2, 3)
     nk = nn[k]
-    nk_node = node[k]
-    g = fit.grad[nk_node]                                                   # (R, 3 xyz, 3 channels)
-    # L_lin and N·u are affine in (a, b): per rectangle three coefficients
-    alpha = fit.value[nk_node] + np.einsum("ri,ric->rc", r0 - cu[k], g)
-    beta = np.einsum("ri,ric->rc", s1, g)
-    gamma = np.einsum("ri,ric->rc", s2, g)
-    n0, n1, n2 = (np.einsum("ri,ri->r", v, nk) for v in (r0, s1, s2))
-    x = 0.5 * (_QX + 1.0)
-    a_, b_ = np.repeat(x, len(x))[None, :], np.tile(x, len(x))[None, :]
-    w = 0.25 * np.outer(_QW, _QW).ravel()[None, :]                          # sums to 1
-    ux = r0[:, :1] + a_ * s1[:, :1] + b_ * s2[:, :1]
-    uy = r0[:, 1:2] + a_ * s1[:, 1:2] + b_ * s2[:, 1:2]
-    uz = r0[:, 2:] + a_ * s1[:, 2:] + b_ * s2[:, 2:]
-    uu = ux * ux + uy * uy + uz * uz
-    wk = w * (n0[:, None] + a_ * n1[:, None] + b_ * n2[:, None]) / (uu * uu)   # w π k / |δ| (>= 0)
-    s0, sa, sb = wk.sum(axis=1), (wk * a_).sum(axis=1), (wk * b_).sum(axis=1)
-    scale = (area * delta[k])[:, None]
-    per = scale * (alpha * s0[:, None] + beta * sa[:, None] + gamma * sb[:, None])
-    mag = scale * s0[:, None] * (np.abs(alpha) + np.abs(beta) + np.abs(gamma))
+    # over a rectangle u = r0 + a s1 + b s2 (s1 ⊥ s2, a, b in [0, 1]) N·u is affine and |u|² separable
+    # in (a, b): both on the rule's n × n grid from per-side terms
+    n0 = np.einsum("ri,ri->r", r0, nk)
+    n12 = np.einsum("rki,ri->rk", sd, nk)
+    c12 = 2.0 * np.einsum("rki,ri->rk", sd, r0)
+    l2 = len2[rid]
+    ua = (c12[:, :1] + l2[:, :1] * _QA) * _QA + np.einsum("ri,ri->r", r0, r0)[:, None]
+    ub = (c12[:, 1:] + l2[:, 1:] * _QA) * _QA
+    uu = ua[:, :, None] + ub[:, None, :]                                    # (R, n, n) |u|²
+    num = (n12[:, :1] * _QA + n0[:, None])[:, :, None] + (n12[:, 1:] * _QA)[:, None, :]   # N·u
+    uu *= uu
+    num /= uu                                                               # π k / |δ| (>= 0)
+    mom = num.reshape(len(rid), -1) @ _QMOM                                 # (R, 3): Σ w k, Σ w k a, Σ w k b
+    # L_lin = coef_0 + a coef_1 + b coef_2 per channel
+    scale = area[rid] * delta[k]
+    cf = coef[rid]                                                          # (R, 3 terms, 3 channels)
+    per = scale[:, None] * np.einsum("rt,rtc->rc", mom, cf)
+    mag = (scale * mom[:, 0])[:, None] * coef_abs[rid]
     first = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
     h = np.add.reduceat(per, first, axis=0)
     mag = np.add.reduceat(mag, first, axis=0)
@@ -1057,3 +1091,26 @@ def linear_node_irradiance(fit: NodeFits, point, node, points, normals):
     pgrad = delta[:, None] * (nn / (r2 * r2)[:, None] - 4.0 * (nu / (r2 * r2 * r2))[:, None] * cu)
     saw = np.einsum("pk,pkc->pc", np.einsum("pkl,pl->pk", fit.jsum[node], pgrad), fit.grad[node])
     return h - saw, 1e-12 * (mag + np.abs(saw))
+
+def _rect_terms(fit: NodeFits):
+    """Per rectangle of ``fit`` what :func:`linear_node_irradiance` needs that does not depend on the
+    receiver (cached on ``fit``): ``(coef (R, 3, 3), sides (R, 2, 3), len2 (R, 2), area (R,), coef_abs (R,
+    3))``: ``coef`` rows the affine radiance ``L_lin`` at corner 0 and its steps along the two sides ``s1 =
+    corner 1 − corner 0``, ``s2 = corner 3 − corner 0`` (per channel), ``len2`` their squared lengths,
+    ``coef_abs`` the rows' absolute values summed (the rounding allowance's weight)."""
+    cached = getattr(fit, "_rect_cache", None)
+    if cached is not None and cached[0] is fit.rect:
+        return cached[1]
+    owner = np.repeat(np.arange(len(fit.rect_ptr) - 1), np.diff(fit.rect_ptr))
+    s1 = fit.rect[:, 1] - fit.rect[:, 0]
+    s2 = fit.rect[:, 3] - fit.rect[:, 0]
+    g = fit.grad[owner]                                                     # (R, 3 xyz, 3 channels)
+    coef = np.stack([fit.value[owner] + np.einsum("ri,ric->rc", fit.rect[:, 0] - fit.centre[owner], g),
+                     np.einsum("ri,ric->rc", s1, g), np.einsum("ri,ric->rc", s2, g)], axis=1)
+    sides = np.stack([s1, s2], axis=1)
+    len2 = np.einsum("rki,rki->rk", sides, sides)
+    area = np.linalg.norm(np.cross(s1, s2), axis=1)
+    out = (coef, sides, len2, area, np.abs(coef).sum(axis=1))
+    fit._rect_cache = (fit.rect, out)
+    return out
+

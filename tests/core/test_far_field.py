@@ -232,6 +232,11 @@ _FIELDS = {
     "ramp": lambda x, y: np.column_stack([0.2 + 5.0 * x + 3.0 * y] * 3) * [1.0, 0.5, 2.0],
     # a hard shadow edge across smooth light
     "shadow": lambda x, y: np.column_stack([np.where(x + 0.3 * y < 0.55, 0.1, 1.0 + x * y)] * 3),
+    # bright single quads at corners of nodes (the plane's corner, the middle) on smooth light: the residual
+    # term weighs each member's |ε| by its own moment about the node's centroid, largest at a corner
+    "spots": lambda x, y: np.column_stack([1.0 + 0.3 * x + 40.0 * ((np.abs(x - 0.5 + 1 / 128) < 1e-9)
+                                                                  & (np.abs(y - 0.5 + 1 / 128) < 1e-9))
+                                           + 40.0 * ((x > 1 - 1 / 64) & (y > 1 - 1 / 64))] * 3),
     # a smooth field with a tiny chequerboard on it
     "chequer": lambda x, y: np.column_stack(
         [1.0 + 0.5 * x * x + 1e-3 * ((np.floor(x * 64) + np.floor(y * 64)) % 2)] * 3),
