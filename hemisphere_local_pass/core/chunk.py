@@ -27,7 +27,7 @@ from . import far_field as far_field_module
 from .clear_tiles import TileEdges, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
 from .far_field import NodeEdges, ProxyCredit, clear_node_test, node_edges
-from .form_factor import contour_integral
+from .form_factor import contour_integral, contour_integral_bounded
 from .hierarchy import TileHierarchy, build_hierarchy, visit_tiles
 from .parallel import Cancelled
 from .projection import hemisphere_candidates
@@ -187,8 +187,12 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
     that are clear are not expanded (:mod:`.far_field`) and come as ``clear = (pairs, tile_edges, nodes)``
     with ``nodes = (point, node, side)``; without it ``clear`` has two items and nothing changes.
     ``far_tolerance`` (3,): the far field's tolerance, for the nodes taken whole by their linear proxy
-    (:func:`.far_field.clear_node_test`; None: only nodes with a welded list)."""
+    (:func:`.far_field.clear_node_test`; None: only nodes with a welded list). With ``far_tolerance`` the
+    signed terms' eq. 4 sums that cancel may stay in float64 (:func:`.form_factor.contour_integral_bounded`):
+    ``fragments.ff_bound (F,)`` bounds each ``ff``'s distance from the exact path's."""
     signed = use_clear if signed is None else signed
+    # with a tolerance the fragments' cancelling sums may stay in float64, their rounding bounded
+    bounded = signed and far_tolerance is not None
     reps = _representatives(scene)
     row = _row(include)
     if reps is not None:  # identical copies are projected once (see Scene._find_duplicates)
@@ -230,7 +234,7 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
         # the candidate stage per group of receivers (memory bound); everything before it was done once
         lo, hi = np.searchsorted(tiles.point, (s, e))
         cov.tiles = tiles if (lo, hi) == (0, len(tiles.point)) else tiles.take(np.arange(lo, hi))
-        parts.append(_fragments(scene, points, normals, limit, include, occ, sv, table, cov, signed))
+        parts.append(_fragments(scene, points, normals, limit, include, occ, sv, table, cov, signed, bounded))
     cov.tiles = tiles
     if len(parts) == 1:
         frags, ff = parts[0]
@@ -238,6 +242,8 @@ def visible(scene: Scene, points, normals, limit, occ: Occluders, include, *, us
         frags = Fragments(None, None, *(np.concatenate([getattr(f, a) for f, _ in parts])
                                         for a in ("counts", "point", "poly", "side", "owner")))
         ff = np.concatenate([f for _, f in parts])
+        if bounded:
+            frags.ff_bound = np.concatenate([f.ff_bound for f, _ in parts])
     else:
         frags, ff = Fragments.concat([f for f, _ in parts]), np.concatenate([f for _, f in parts])
     if reps is not None:
@@ -259,8 +265,9 @@ def _receiver_groups(cum, s: int, e: int, limit: int) -> list[tuple[int, int]]:
     return _receiver_groups(cum, s, h, limit) + _receiver_groups(cum, h, e, limit)
 
 
-def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, signed):
-    """The candidate stage of :func:`visible` for the tile pairs ``cov.tiles``: ``(fragments, ff)``."""
+def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, signed, bounded=False):
+    """The candidate stage of :func:`visible` for the tile pairs ``cov.tiles``: ``(fragments, ff)``; with
+    ``bounded`` (signed terms only) the fragments carry ``ff_bound`` (see :func:`visible`)."""
     tiles = cov.tiles
     cand = hemisphere_candidates(scene, points, normals, limit, include, occ, tiles)
     ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
@@ -269,10 +276,19 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
     if signed:
         # signed terms, integrated set by set; the sums need only their ids (verts None)
         terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
-        ff = np.concatenate([sign * np.maximum(t.side * contour_by_width(t, normals, points, flat), 0.0)
-                             for t, sign in terms] or [np.zeros(0)])
+        if bounded:
+            # max(·, 0) moves no value farther from the exact path's than the bound
+            res = [contour_by_width(t, normals, points, flat, bounded=True) for t, _ in terms]
+            ff = np.concatenate([sign * np.maximum(t.side * f, 0.0) for (t, sign), (f, _) in zip(terms, res)]
+                                or [np.zeros(0)])
+            rounding = np.concatenate([b for _, b in res] or [np.zeros(0)])
+        else:
+            ff = np.concatenate([sign * np.maximum(t.side * contour_by_width(t, normals, points, flat), 0.0)
+                                 for t, sign in terms] or [np.zeros(0)])
         frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
                                         for a in ("counts", "point", "poly", "side", "owner")))
+        if bounded:
+            frags.ff_bound = rounding
     else:
         frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
@@ -280,12 +296,15 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
     return frags, ff
 
 
-def contour_by_width(frags: Fragments, normals, points, flat=None) -> np.ndarray:
+def contour_by_width(frags: Fragments, normals, points, flat=None, bounded: bool = False):
     """Eq. 4 for every fragment, the many small ones (<= 4 vertices) without their padding slots.
 
     ``flat``: None or, in a one-sided limit, ``(candidate flags (C,), plane normals (n, 3))`` as for
     :func:`.visibility.subtract_shadow_volumes`: fragments of candidates lying in a plane through P take
-    that plane as the great circle of their edges (see :func:`.form_factor.contour_integral`)."""
+    that plane as the great circle of their edges (see :func:`.form_factor.contour_integral`).
+    ``bounded`` (a tolerance's callers): ``(F (F,), bound (F,))`` from
+    :func:`.form_factor.contour_integral_bounded`, ``bound`` on ``|F − F_exact path|``."""
+    integral = contour_integral_bounded if bounded else contour_integral
     width = frags.verts.shape[1]
     small = frags.counts <= 4
     noise = None if frags.inf is None else COORD_EPS * np.abs(points).max(axis=1)[frags.point]
@@ -295,12 +314,16 @@ def contour_by_width(frags: Fragments, normals, points, flat=None) -> np.ndarray
         if on.any():
             planes = np.where(on[:, None], take_rows(flat[1], frags.poly), 0.0)
     if width <= 4 or small.all() or not small.any():
-        return contour_integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise, planes)
+        return integral(frags.verts, take_rows(normals, frags.point), frags.inf, noise, planes)
     out = np.empty(len(frags.counts))
+    bound = np.zeros(len(frags.counts))
     for sel, w in ((np.flatnonzero(small), 4), (np.flatnonzero(~small), width)):
-        out[sel] = contour_integral(take_rows(frags.verts[:, :w], sel), take_rows(normals, frags.point[sel]),
-                                    None if frags.inf is None else take_rows(frags.inf[:, :w], sel),
-                                    None if noise is None else noise[sel],
-                                    None if planes is None else take_rows(planes, sel))
-    return out
-
+        res = integral(take_rows(frags.verts[:, :w], sel), take_rows(normals, frags.point[sel]),
+                       None if frags.inf is None else take_rows(frags.inf[:, :w], sel),
+                       None if noise is None else noise[sel],
+                       None if planes is None else take_rows(planes, sel))
+        if bounded:
+            out[sel], bound[sel] = res
+        else:
+            out[sel] = res
+    return (out, bound) if bounded else out

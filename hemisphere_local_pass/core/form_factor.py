@@ -16,7 +16,7 @@ import numpy as np
 from .rowops import sum_rows
 from .tolerances import COORD_EPS, PLANE_EPS
 
-__all__ = ["CANCELLATION", "contour_integral", "directions", "edge_noise"]
+__all__ = ["CANCELLATION", "contour_integral", "contour_integral_bounded", "directions", "edge_noise"]
 
 _INV_2PI = 1.0 / (2.0 * np.pi)
 
@@ -70,7 +70,7 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     (a cut 1e-6 from P along a 7e5 polygon tilted it by 1e-5 rad, and lost 3.5e-7 of the limit factor).
     """
     if inf is None:
-        return _contour_slot_major(verts, normal)
+        return _contour_slot_major(verts, normal)[0]
     # one-sided limits: vertices at P take their first-order directions, and edges through P their
     # first-order great circles
     a, at_p = _directions(verts, inf)
@@ -137,19 +137,59 @@ def contour_integral(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | No
     return _INV_2PI * total
 
 
-def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
+def contour_integral_bounded(verts: np.ndarray, normal: np.ndarray, inf: np.ndarray | None = None,
+                             noise=None, planes: np.ndarray | None = None):
+    """:func:`contour_integral` for a caller with a tolerance: ``(F (F,), bound (F,))``, ``bound`` on
+    ``|F − contour_integral(...)|`` (the same arguments).
+
+    Rows whose terms cancel (the ones :func:`contour_integral` redoes in extended precision) and whose
+    edges all span less than 90° seen from P (``a · b > 0``) keep their float64 sum, with the bound on
+    its rounding (:func:`_plain_bound`); every other row is :func:`contour_integral`'s, bound 0. At
+    190,000 polygons two thirds of the visible fragments' rows cancel (small polygons seen from afar:
+    terms ~ size / distance summing to ~ (size / distance)²), and their extended redo was a tenth of a
+    call's time."""
+    if inf is not None:
+        return contour_integral(verts, normal, inf, noise, planes), np.zeros(len(verts))
+    return _contour_slot_major(verts, normal, bounded=True)
+
+
+def _plain_bound(ex, ey, ez, na, nb, terms, rows):
+    """(R,) bound on ``|Σ_j t_j − Σ_j t_j^ext| / 2π`` for the float64 eq. 4 sums of ``rows`` (R,) of the
+    ``(K, F)`` slot-major arrays (``e = b − a``, ``na, nb`` = ``|a|², |b|²``, ``terms`` the float64
+    ``t_j``), every edge with ``a · b > 0`` (γ < π/2).
+
+    Per edge, u = 2^-53 (:func:`_edge_geometry`'s formulas): ``a × b`` is computed from the end x with
+    ``|x| <= 4 min(|a|, |b|)``, within ``4.3 u |x| |e|``; ``a · b`` within ``3 u |a| |b|``; with ``s² + d²
+    = |a|² |b|²`` the angle γ is within ``17.2 u |e| / M + 10.6 u`` (``M = max(|a|, |b|)``), and the unit
+    great-circle normal within ``2 |δc| / s + 6 u`` where ``γ <= (π/2) s / (|a| |b|)`` turns it into
+    ``54 u |e| / M + 9.5 u``: ``|δt| <= 71.2 u |e| / M + 20.1 u + 2 u |t|``; the sum of K terms adds
+    ``(K − 1) u Σ |t|``. Taken here as ``u (128 |e| / M + 32 + (K + 4) |t|)`` per edge, which also covers
+    the extended sum's own error (its unit is 2^-11 of u)."""
+    u = np.finfo(np.float64).eps / 2
+    k = terms.shape[0]
+    e_len = np.sqrt(ex[:, rows] ** 2 + ey[:, rows] ** 2 + ez[:, rows] ** 2)
+    big = np.sqrt(np.maximum(na[:, rows], nb[:, rows]))
+    rel = np.divide(e_len, big, out=np.zeros_like(e_len), where=big > 0)
+    per = 128.0 * rel + 32.0 + (k + 4) * np.abs(terms[:, rows])
+    return u * _INV_2PI * per.sum(axis=0)
+
+
+def _contour_slot_major(verts: np.ndarray, normal: np.ndarray, bounded: bool = False):
     """:func:`contour_integral` without one-sided limits, on ``(K, F)`` arrays: contiguous along the long
     axis, so that the per-polygon normal broadcasts along it (a per-row ``(F, 1)`` operand against
     ``(F, K)`` goes through numpy's buffered iterator, about 5× slower). The same formulas in the same
-    order as the general path: bitwise equal results."""
+    order as the general path: bitwise equal results. Returns ``(F (F,), bound (F,) or None)``: with
+    ``bounded`` (:func:`contour_integral_bounded`) the cancelling rows with every ``a · b > 0`` stay in
+    float64 and ``bound`` holds their rounding bound; otherwise None."""
     f = verts.shape[0]
     t = np.ascontiguousarray(verts.transpose(2, 1, 0))                        # (3, K, F)
     ax, ay, az = t[0], t[1], t[2]
     bx = np.concatenate([ax[1:], ax[:1]])
     by = np.concatenate([ay[1:], ay[:1]])
     bz = np.concatenate([az[1:], az[:1]])
-    far = _far_ends(np.einsum("ikf,ikf->kf", t, t), 0)
-    _, (cx, cy, cz), s, _, gamma = _edge_geometry(ax, ay, az, bx, by, bz, far)
+    na = np.einsum("ikf,ikf->kf", t, t)
+    far = _far_ends(na, 0)
+    (ex, ey, ez), (cx, cy, cz), s, d, gamma = _edge_geometry(ax, ay, az, bx, by, bz, far)
     # γ/|a×b|, 0 where a×b = 0 (then γ is 0 or π: γ/∞ = 0, bitwise as a masked divide, without the mask)
     ratio = gamma
     ratio /= np.where(s > 0.0, s, np.inf)
@@ -167,6 +207,15 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
         total += terms[j]
         cond += np.abs(terms[j])
     bad = cond > CANCELLATION * np.abs(total)
+    bound = np.zeros(f) if bounded else None
+    if bounded and bad.any():
+        # rows that may stay in float64: every edge under 90° (the bound's premise)
+        plain = bad & (d > 0.0).all(axis=0)
+        rows = np.flatnonzero(plain)
+        if len(rows):
+            nb = np.concatenate([na[1:], na[:1]])
+            bound[rows] = _plain_bound(ex, ey, ez, na, nb, terms, rows)
+            bad &= ~plain
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
         far_bad = None
         if far is not None:
@@ -174,7 +223,7 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray) -> np.ndarray:
             m[far] = True
             far_bad = m[:, bad].T
         total[bad] = _terms_extended(verts[bad], nrm[bad], (s[:, bad] > 0.0).T, None, None, far_bad)
-    return _INV_2PI * total
+    return _INV_2PI * total, bound
 
 
 def _far_ends(na: np.ndarray, axis: int):

@@ -342,6 +342,10 @@ def _irradiance_far_chunk(shared, p, n, u, tol) -> np.ndarray:
             hw = w * half[frags.poly, c]
             out[:, 3 + c] += (np.abs(np.pi * np.bincount(frags.point, weights=hw, minlength=m))
                               + ROUNDING * np.pi * np.bincount(frags.point, weights=np.abs(hw), minlength=m))
+        if frags.ff_bound is not None:  # the float64 sums kept where the exact path redoes them (and |hw|'s)
+            fb = np.where(lit, frags.ff_bound, 0.0) * (np.abs(rad_cols[c][frags.poly])
+                                                       + (0.0 if half is None else half[frags.poly, c]))
+            out[:, 3 + c] += np.pi * np.bincount(frags.point, weights=fb, minlength=m)
     out[:, 3:6] *= 1.0 + 1e-9
     if clear is not None:
         pairs, _, nodes = clear

@@ -44,7 +44,9 @@ class Fragments:
 
     Attributes: verts (F, K, 3); inf (F, K, 3) or None; counts (F,); point (F,) receiver; poly (F,)
     convex polygon; side (F,) receiver side of the polygon's plane (+1 behind, -1 in front); owner
-    (F,) the candidate each fragment was cut from (internal to the visibility stage).
+    (F,) the candidate each fragment was cut from (internal to the visibility stage); ff_bound (F,) or
+    None: with a tolerance, a bound on how far each fragment's form factor may be from the exact path's
+    (:func:`.form_factor.contour_integral_bounded`; None: it is the exact path's).
     """
 
     verts: np.ndarray
@@ -54,6 +56,7 @@ class Fragments:
     poly: np.ndarray
     side: np.ndarray
     owner: np.ndarray
+    ff_bound: np.ndarray | None = None
 
     def take(self, sel) -> Fragments:
         """The fragments ``sel`` (an integer index or a boolean mask)."""

@@ -438,3 +438,53 @@ def test_credit_proxies_stay_within_the_bound(kind, monkeypatch):
     monkeypatch.setattr(far_field, "PROXY_CREDIT", False)
     _, _, st0 = _check(scene, pts, nrm, rel_tol=1e-2)
     assert st.clear_nodes.sum() > st0.clear_nodes.sum()      # the credit was used (not vacuous)
+
+
+def _cancelling_rows(rng, n):
+    """Quads (n, 4, 3) relative to P that make eq. 4's terms cancel: small and far (1e-6 .. 1e-2 of their
+    distance, up to 1e3), seen near edge on or with an edge pointing at P, plus a few wide ones (edges over
+    90°, which must stay on the exact path)."""
+    dist = 10.0 ** rng.uniform(-1, 3, n)
+    size = dist * 10.0 ** rng.uniform(-6, -2, n)
+    d = rng.normal(size=(n, 3))
+    d[:, 2] = np.abs(d[:, 2]) + 1e-3
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    c = d * dist[:, None]
+    s1 = rng.normal(size=(n, 3))
+    pointing = rng.random(n) < 0.3
+    s1[pointing] = d[pointing]                    # one edge pair along the line of sight
+    s1 /= np.linalg.norm(s1, axis=1, keepdims=True)
+    s2 = np.cross(s1, rng.normal(size=(n, 3)))
+    s2 /= np.linalg.norm(s2, axis=1, keepdims=True)
+    corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * 0.5
+    q = c[:, None, :] + size[:, None, None] * (corners[None, :, :1] * s1[:, None] + corners[None, :, 1:] * s2[:, None])
+    wide = rng.random(n) < 0.1                    # a big polygon right over P: edges over 90°
+    q[wide] = np.array([[-5.0, -5.0, 0.1], [5.0, -5.0, 0.1], [5.0, 5.0, 0.1], [-5.0, 5.0, 0.1]]) \
+        + rng.normal(scale=1e-3, size=(int(wide.sum()), 4, 3))
+    return q, wide
+
+
+def test_float64_eq4_rows_kept_by_the_tolerance_are_within_their_bound():
+    """With a tolerance, eq. 4's cancelling rows stay in float64 (``contour_integral_bounded``): each is
+    within its returned bound of the exact path's extended-precision value, the others are equal to it
+    bit for bit, and the bound is a rounding-level one (<= 1e-10 of the row's Σ|terms| / 2π)."""
+    from hemisphere_local_pass.core.form_factor import contour_integral, contour_integral_bounded
+
+    if np.finfo(np.longdouble).eps >= np.finfo(np.float64).eps:
+        pytest.skip("no extended precision on this platform: the two paths are the same")
+    rng = np.random.default_rng(7)
+    q, wide = _cancelling_rows(rng, 20000)
+    normal = np.broadcast_to([0.0, 0.0, 1.0], (len(q), 3))
+    ff_exact = contour_integral(q, normal)
+    ff, bound = contour_integral_bounded(q, normal)
+    kept = bound > 0
+    assert kept.sum() > 10000                     # most rows cancel, and are kept
+    assert not kept[wide].any()
+    assert np.array_equal(ff[~kept], ff_exact[~kept])
+    err = np.abs(ff - ff_exact)
+    assert (err <= bound).all(), float((err / np.where(bound > 0, bound, 1)).max())
+    # the rows' scale: Σ|t_e| / 2π with |t_e| <= γ_e <= |e| / min(|a|, |b|)
+    edge = np.linalg.norm(np.roll(q, -1, axis=1) - q, axis=2)
+    near = np.minimum(np.linalg.norm(q, axis=2), np.linalg.norm(np.roll(q, -1, axis=1), axis=2))
+    scale = (edge / near).sum(axis=1) / (2 * np.pi)
+    assert (bound[kept] <= 1e-10 * np.maximum(scale[kept], 1e-300) + 1e-13).all()
