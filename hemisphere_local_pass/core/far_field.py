@@ -931,45 +931,70 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
                         + mismatch / r_min³) + the rule's error (:func:`_quadrature_bound`)
 
     (``r_c = |c − P|``). The proxy is taken when this is at most the tolerance times a lower bound of the
-    node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the box's lowest
-    corner above P's horizon, ``r_max`` the sphere's farthest point) and ``A k(c) − κ/2 |δ| I / (π
-    r_min⁵)`` (Taylor about the centroid; with ``return_floor`` it is returned too, (E,), 0 where the
+    node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the members' lowest
+    height above P's horizon, from the bounding sphere or box, ``r_max`` the sphere's farthest point)
+    and ``A k(c) − κ/2 |δ| I / (π r_min⁵)`` (Taylor about the centroid; with ``return_floor`` it is
+    returned too, (E,), 0 where the
     node is not wholly in front of P). The proxies a receiver takes see disjoint parts of its
     hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
     """
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
-    ok = fit.ok[en]
+    # every receiver-independent term of an entry in one gathered row (one random access per entry)
+    row = _test_rows(fit, h)[en]
+    ctr, rad, cen, nrm_v = row[:, 0:3], row[:, 3], row[:, 4:7], row[:, 7:10]
+    rmom, gn, saw = row[:, 10:13], row[:, 13:16], row[:, 16]
+    d0, d1, mism, lmax = row[:, 17:20], row[:, 20:23], row[:, 23:26], row[:, 26:29]
+    area, inertia, half, ok = row[:, 29], row[:, 30], row[:, 31], row[:, 32] > 0
     pts = points[ep]
-    rel = h.centers[en] - pts
+    nr = normals[ep]
+    rel = ctr - pts
     rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
-    rmin = rs - h.radii[en]
-    rmax = rs + h.radii[en]
-    cu = fit.centre[en] - pts
+    rmin = rs - rad
+    rmax = rs + rad
+    cu = cen - pts
     rc = np.sqrt(np.einsum("ij,ij->i", cu, cu))
-    delta = np.abs(np.einsum("ij,ij->i", fit.normal[en], cu))
-    hmin = np.matmul(h.corners[en] - pts[:, None, :], normals[ep][:, :, None])[..., 0].min(axis=1)
+    delta = np.abs(np.einsum("ij,ij->i", nrm_v, cu))
+    # h_min, a lower bound of the members' heights above P's horizon: the bounding sphere's lowest point,
+    # or, where that is not above the horizon, the box's lowest corner (both contain every member)
+    hmin = np.einsum("ij,ij->i", rel, nr) - rad
+    low = np.flatnonzero(hmin <= 0)
+    if len(low):
+        hmin[low] = np.matmul(h.corners[en[low]] - pts[low][:, None, :], nr[low][:, :, None])[..., 0].min(axis=1)
     ok &= (rmin > 0) & (hmin > 0) & (delta > 0)
     geo = ok.copy()
     rmin = np.where(ok, rmin, 1.0)
     rc = np.where(ok, rc, 1.0)
     r5 = rmin**5
     kappa = _hessian_factor(delta, rmax)
-    bound = delta[:, None] * ((0.5 * kappa / r5)[:, None] * fit.resid_moment[en]
-                              + fit.gnorm[en] * (kappa * fit.saw[en] / r5)[:, None]
-                              + fit.defect0[en] / (rc**3)[:, None] + 3.0 * fit.defect1[en] / (rc**4)[:, None]
-                              + fit.mismatch[en] / (rmin**3)[:, None]) * (1.0 + SAFETY)
-    bound += _quadrature_bound(fit, en, delta, rmin, rmax)
-    # a lower bound of F_v: the box's lowest corner and farthest point, or k at the centroid less the
+    bound = delta[:, None] * ((0.5 * kappa / r5)[:, None] * rmom + gn * (kappa * saw / r5)[:, None]
+                              + d0 / (rc**3)[:, None] + 3.0 * d1 / (rc**4)[:, None]
+                              + mism / (rmin**3)[:, None]) * (1.0 + SAFETY)
+    bound += _quadrature_bound(half, lmax, gn, area, delta, rmin, rmax)
+    # a lower bound of F_v: the members' lowest height and farthest point, or k at the centroid less the
     # Hessian's remainder (the first-order term integrates to zero about the centroid)
-    f_box = fit.area[en] * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4)
-    nu = np.einsum("ij,ij->i", normals[ep], cu)
-    f_mid = delta * (fit.area[en] * nu / rc**4 - 0.5 * kappa * fit.inertia[en] / r5) / np.pi
+    f_box = area * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4)
+    nu = np.einsum("ij,ij->i", nr, cu)
+    f_mid = delta * (area * nu / rc**4 - 0.5 * kappa * inertia / r5) / np.pi
     floor = np.maximum(f_box, f_mid * (1.0 - 1e-12))
     allowed = tol[None, :] * floor[:, None]
     ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
     if return_floor:
         return ok, np.where(geo[:, None], bound, np.inf), np.where(geo, np.maximum(floor, 0.0), 0.0)
     return ok, np.where(geo[:, None], bound, np.inf)
+
+
+def _test_rows(fit: NodeFits, h) -> np.ndarray:
+    """(N, 33) per node, what :func:`linear_node_test` reads (cached on ``fit``): sphere centre (3) and
+    radius, centroid (3), normal (3), resid_moment (3), gnorm (3), saw, defect0 (3), defect1 (3),
+    mismatch (3), lmax (3), area, inertia, half_side, ok (1.0 / 0.0)."""
+    cached = getattr(fit, "_test_cache", None)
+    if cached is not None and cached[0] is h and cached[1] is fit.ok:
+        return cached[2]
+    rows = np.column_stack([h.centers, h.radii, fit.centre, fit.normal, fit.resid_moment, fit.gnorm, fit.saw,
+                            fit.defect0, fit.defect1, fit.mismatch, fit.lmax, fit.area, fit.inertia,
+                            fit.half_side, fit.ok.astype(np.float64)])
+    fit._test_cache = (h, fit.ok, rows)
+    return rows
 
 
 def _hessian_factor(delta, rmax):
@@ -1000,17 +1025,20 @@ def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
             r2 = np.where(fit.ok & (fit.area > 0), np.pi * q / np.where(fit.area > 0, fit.area, 1.0), np.inf)
         cached = (key, 0.99 * np.nan_to_num(r2, nan=np.inf))
         fit._reach = cached
-    rel = h.centers[en] - points[ep]
+    row = _test_rows(fit, h)[en, :10]                   # sphere centre, radius, centroid, normal
+    pts = points[ep]
+    rel = row[:, 0:3] - pts
     rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
-    rmin = rs - h.radii[en]
-    delta = np.abs(np.einsum("ij,ij->i", fit.normal[en], fit.centre[en] - points[ep]))
+    rmin = rs - row[:, 3]
+    delta = np.abs(np.einsum("ij,ij->i", row[:, 7:10], row[:, 4:7] - pts))
     # divided rather than multiplied: a finite threshold near the float maximum must not overflow
-    return (rmin > 0) & (rmin * rmin / _hessian_factor(delta, rs + h.radii[en]) >= cached[1][en])
+    return (rmin > 0) & (rmin * rmin / _hessian_factor(delta, rs + row[:, 3]) >= cached[1][en])
 
 
-def _quadrature_bound(fit: NodeFits, en, delta, rmin, rmax):
+def _quadrature_bound(half, lmax, gnorm, area, delta, rmin, rmax):
     """(E, 3) bound on the error of the :data:`QUAD_NODES`² Gauss–Legendre rule of
-    :func:`linear_node_irradiance` on node ``en``'s rectangles, times π.
+    :func:`linear_node_irradiance` on the entries' rectangles, times π (per entry its node's ``half_side,
+    lmax (E, 3), gnorm (E, 3), area`` from :class:`NodeFits`).
 
     The integrand ``f = L_lin k`` is analytic where ``u·u ≠ 0``. Continue one coordinate into the
     complex plane by at most ``y = r_min / 4``: real parts stay within y of the rectangle (``|Re u| >=
@@ -1021,11 +1049,10 @@ def _quadrature_bound(fit: NodeFits, en, delta, rmin, rmax):
     19.3), and the tensor rule by at most ``(64/15) M A ρ^-2n / (ρ² − 1)`` over a rectangle of area A
     (one term per direction, each side <= the largest, ``h``)."""
     y = 0.25 * rmin
-    q = np.minimum(y / np.maximum(fit.half_side[en], 1e-300), 1e100)     # (no rectangles: not taken)
+    q = np.minimum(y / np.maximum(half, 1e-300), 1e100)                  # (no rectangles: not taken)
     rho = q + np.sqrt(1.0 + q * q)
-    m = (fit.lmax[en] + 2.0 * y[:, None] * fit.gnorm[en]) * \
-        (delta * (rmax + 2.0 * y) / (0.25 * np.pi * rmin**4))[:, None]
-    area = fit.area[en] * (1.0 + 2 * RECT_FILL)
+    m = (lmax + 2.0 * y[:, None] * gnorm) * (delta * (rmax + 2.0 * y) / (0.25 * np.pi * rmin**4))[:, None]
+    area = area * (1.0 + 2 * RECT_FILL)
     return np.pi * (64.0 / 15.0) * m * (area * rho ** (-2.0 * QUAD_NODES) / (rho * rho - 1.0))[:, None]
 
 
@@ -1054,22 +1081,24 @@ _QMOM = np.stack([_QW2, _QW2 * np.repeat(_QA, QUAD_NODES), _QW2 * np.tile(_QA, Q
 
 def _proxy_batch(fit: NodeFits, point, node, points, normals):
     """:func:`linear_node_irradiance` for one batch of pairs."""
-    coef, sides, len2, area, coef_abs = _rect_terms(fit)
+    rect_rows, node_rows = _rect_terms(fit)
     p = points[point]
     nn = normals[point]
-    cu = fit.centre[node] - p
-    delta = np.abs(np.einsum("ij,ij->i", fit.normal[node], cu))
+    nd = node_rows[node]                                                    # (P, 24)
+    cu = nd[:, 0:3] - p
+    delta = np.abs(np.einsum("ij,ij->i", nd[:, 3:6], cu))
     # every pair's rectangles (a pair's are consecutive)
     k, rid = expand(node, fit.rect_ptr, np.arange(len(fit.rect)))
-    r0 = fit.rect[rid, 0] - p[k]
-    sd = sides[rid]                                                         # (R, 2, 3)
+    rr = rect_rows[rid]                                                     # (R, 24)
+    r0 = rr[:, 0:3] - p[k]
+    sd = rr[:, 3:9].reshape(-1, 2, 3)                                       # (R, 2, 3)
     nk = nn[k]
     # over a rectangle u = r0 + a s1 + b s2 (s1 ⊥ s2, a, b in [0, 1]) N·u is affine and |u|² separable
     # in (a, b): both on the rule's n × n grid from per-side terms
     n0 = np.einsum("ri,ri->r", r0, nk)
     n12 = np.einsum("rki,ri->rk", sd, nk)
     c12 = 2.0 * np.einsum("rki,ri->rk", sd, r0)
-    l2 = len2[rid]
+    l2 = rr[:, 9:11]
     ua = (c12[:, :1] + l2[:, :1] * _QA) * _QA + np.einsum("ri,ri->r", r0, r0)[:, None]
     ub = (c12[:, 1:] + l2[:, 1:] * _QA) * _QA
     uu = ua[:, :, None] + ub[:, None, :]                                    # (R, n, n) |u|²
@@ -1078,10 +1107,10 @@ def _proxy_batch(fit: NodeFits, point, node, points, normals):
     num /= uu                                                               # π k / |δ| (>= 0)
     mom = num.reshape(len(rid), -1) @ _QMOM                                 # (R, 3): Σ w k, Σ w k a, Σ w k b
     # L_lin = coef_0 + a coef_1 + b coef_2 per channel
-    scale = area[rid] * delta[k]
-    cf = coef[rid]                                                          # (R, 3 terms, 3 channels)
+    scale = rr[:, 11] * delta[k]
+    cf = rr[:, 12:21].reshape(-1, 3, 3)                                     # (R, 3 terms, 3 channels)
     per = scale[:, None] * np.einsum("rt,rtc->rc", mom, cf)
-    mag = (scale * mom[:, 0])[:, None] * coef_abs[rid]
+    mag = (scale * mom[:, 0])[:, None] * rr[:, 21:24]
     first = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
     h = np.add.reduceat(per, first, axis=0)
     mag = np.add.reduceat(mag, first, axis=0)
@@ -1089,15 +1118,18 @@ def _proxy_batch(fit: NodeFits, point, node, points, normals):
     r2 = np.einsum("ij,ij->i", cu, cu)
     nu = np.einsum("ij,ij->i", nn, cu)
     pgrad = delta[:, None] * (nn / (r2 * r2)[:, None] - 4.0 * (nu / (r2 * r2 * r2))[:, None] * cu)
-    saw = np.einsum("pk,pkc->pc", np.einsum("pkl,pl->pk", fit.jsum[node], pgrad), fit.grad[node])
+    saw = np.einsum("pk,pkc->pc", np.einsum("pkl,pl->pk", nd[:, 6:15].reshape(-1, 3, 3), pgrad),
+                    nd[:, 15:24].reshape(-1, 3, 3))
     return h - saw, 1e-12 * (mag + np.abs(saw))
 
 def _rect_terms(fit: NodeFits):
-    """Per rectangle of ``fit`` what :func:`linear_node_irradiance` needs that does not depend on the
-    receiver (cached on ``fit``): ``(coef (R, 3, 3), sides (R, 2, 3), len2 (R, 2), area (R,), coef_abs (R,
-    3))``: ``coef`` rows the affine radiance ``L_lin`` at corner 0 and its steps along the two sides ``s1 =
-    corner 1 − corner 0``, ``s2 = corner 3 − corner 0`` (per channel), ``len2`` their squared lengths,
-    ``coef_abs`` the rows' absolute values summed (the rounding allowance's weight)."""
+    """Per rectangle and per node of ``fit`` what :func:`linear_node_irradiance` reads, one row each (one
+    gather per pair and rectangle; cached on ``fit``): ``(rect_rows (R, 24), node_rows (N, 24))``.
+
+    A rectangle's row: corner 0 (3), its sides ``s1 = corner 1 − corner 0``, ``s2 = corner 3 − corner 0``
+    (6), their squared lengths (2), its area (1), ``coef`` (9: rows the affine radiance ``L_lin`` at corner
+    0 and its steps along s1 and s2, per channel) and the rows' absolute values summed (3, the rounding
+    allowance's weight). A node's: centroid (3), normal (3), ``jsum`` (9) and ``grad`` (9)."""
     cached = getattr(fit, "_rect_cache", None)
     if cached is not None and cached[0] is fit.rect:
         return cached[1]
@@ -1107,10 +1139,12 @@ def _rect_terms(fit: NodeFits):
     g = fit.grad[owner]                                                     # (R, 3 xyz, 3 channels)
     coef = np.stack([fit.value[owner] + np.einsum("ri,ric->rc", fit.rect[:, 0] - fit.centre[owner], g),
                      np.einsum("ri,ric->rc", s1, g), np.einsum("ri,ric->rc", s2, g)], axis=1)
-    sides = np.stack([s1, s2], axis=1)
-    len2 = np.einsum("rki,rki->rk", sides, sides)
+    len2 = np.stack([np.einsum("ri,ri->r", s1, s1), np.einsum("ri,ri->r", s2, s2)], axis=1)
     area = np.linalg.norm(np.cross(s1, s2), axis=1)
-    out = (coef, sides, len2, area, np.abs(coef).sum(axis=1))
+    rect_rows = np.column_stack([fit.rect[:, 0], s1, s2, len2, area, coef.reshape(-1, 9), np.abs(coef).sum(axis=1)])
+    n = len(fit.rect_ptr) - 1
+    node_rows = np.column_stack([fit.centre, fit.normal, fit.jsum.reshape(n, 9), fit.grad.reshape(n, 9)])
+    out = (rect_rows, node_rows)
     fit._rect_cache = (fit.rect, out)
     return out
 
