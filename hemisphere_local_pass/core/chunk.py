@@ -276,19 +276,15 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
     if signed:
         # signed terms, integrated set by set; the sums need only their ids (verts None)
         terms = visible_terms(allc, ptr, ids, sv, planes, ~hidden, flat)
-        if bounded:
-            # max(·, 0) moves no value farther from the exact path's than the bound
-            res = [contour_by_width(t, normals, points, flat, bounded=True) for t, _ in terms]
-            ff = np.concatenate([sign * np.maximum(t.side * f, 0.0) for (t, sign), (f, _) in zip(terms, res)]
-                                or [np.zeros(0)])
-            rounding = np.concatenate([b for _, b in res] or [np.zeros(0)])
-        else:
-            ff = np.concatenate([sign * np.maximum(t.side * contour_by_width(t, normals, points, flat), 0.0)
-                                 for t, sign in terms] or [np.zeros(0)])
+        res = [contour_by_width(t, normals, points, flat, bounded=True) if bounded
+               else (contour_by_width(t, normals, points, flat), None) for t, _ in terms]
+        # (max(·, 0) moves no value farther from the exact path's than its bound)
+        ff = np.concatenate([sign * np.maximum(t.side * f, 0.0) for (t, sign), (f, _) in zip(terms, res)]
+                            or [np.zeros(0)])
         frags = Fragments(None, None, *(np.concatenate([getattr(t, a) for t, _ in terms] or [np.zeros(0, dtype=int)])
                                         for a in ("counts", "point", "poly", "side", "owner")))
         if bounded:
-            frags.ff_bound = rounding
+            frags.ff_bound = np.concatenate([b for _, b in res] or [np.zeros(0)])
     else:
         frags = subtract_shadow_volumes(allc.take(~hidden), ptr, ids, sv, planes, flat)
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver

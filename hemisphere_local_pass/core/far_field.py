@@ -934,17 +934,15 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the members' lowest
     height above P's horizon, from the bounding sphere or box, ``r_max`` the sphere's farthest point)
     and ``A k(c) − κ/2 |δ| I / (π r_min⁵)`` (Taylor about the centroid; with ``return_floor`` it is
-    returned too, (E,), 0 where the
-    node is not wholly in front of P). The proxies a receiver takes see disjoint parts of its
-    hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
+    returned too, (E,), 0 where the node is not wholly in front of P). The proxies a receiver takes see
+    disjoint parts of its hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
     """
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
     # every receiver-independent term of an entry in one gathered row (one random access per entry)
     row = _test_rows(fit, h)[en]
-    ctr, rad, cen, nrm_v = row[:, 0:3], row[:, 3], row[:, 4:7], row[:, 7:10]
-    rmom, gn, saw = row[:, 10:13], row[:, 13:16], row[:, 16]
-    d0, d1, mism, lmax = row[:, 17:20], row[:, 20:23], row[:, 23:26], row[:, 26:29]
-    area, inertia, half, ok = row[:, 29], row[:, 30], row[:, 31], row[:, 32] > 0
+    ctr, rad, cen, nrm_v, rmom, gn, saw, d0, d1, mism, lmax, area, inertia, half, ok = \
+        (row[:, _TEST_COLUMNS[name]] for name in _TEST_FIELDS)
+    ok = ok > 0
     pts = points[ep]
     nr = normals[ep]
     rel = ctr - pts
@@ -983,16 +981,24 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     return ok, np.where(geo[:, None], bound, np.inf)
 
 
+#: what :func:`linear_node_test` reads per node, in :func:`_test_rows`'s column order, and the widths
+_TEST_FIELDS = ("centers", "radii", "centre", "normal", "resid_moment", "gnorm", "saw", "defect0", "defect1",
+                "mismatch", "lmax", "area", "inertia", "half_side", "ok")
+_TEST_WIDTHS = (3, 1, 3, 3, 3, 3, 1, 3, 3, 3, 3, 1, 1, 1, 1)
+_TEST_START = np.concatenate([[0], np.cumsum(_TEST_WIDTHS)])
+#: each field's columns: a slice (3 wide) or an index (1 wide: the gathered value is then (E,))
+_TEST_COLUMNS = {f: (slice(a, a + w) if w > 1 else a) for f, a, w in zip(_TEST_FIELDS, _TEST_START, _TEST_WIDTHS)}
+
+
 def _test_rows(fit: NodeFits, h) -> np.ndarray:
-    """(N, 33) per node, what :func:`linear_node_test` reads (cached on ``fit``): sphere centre (3) and
-    radius, centroid (3), normal (3), resid_moment (3), gnorm (3), saw, defect0 (3), defect1 (3),
-    mismatch (3), lmax (3), area, inertia, half_side, ok (1.0 / 0.0)."""
+    """(N, 33) per node the :data:`_TEST_FIELDS` (``centers``, ``radii`` the hierarchy's bounding spheres,
+    the rest ``fit``'s, ``ok`` as 1.0 / 0.0) side by side, cached on ``fit``: :func:`linear_node_test` and
+    :func:`linear_may_fit` gather one row per entry instead of a dozen arrays."""
     cached = getattr(fit, "_test_cache", None)
     if cached is not None and cached[0] is h and cached[1] is fit.ok:
         return cached[2]
-    rows = np.column_stack([h.centers, h.radii, fit.centre, fit.normal, fit.resid_moment, fit.gnorm, fit.saw,
-                            fit.defect0, fit.defect1, fit.mismatch, fit.lmax, fit.area, fit.inertia,
-                            fit.half_side, fit.ok.astype(np.float64)])
+    rows = np.column_stack([getattr(h if f in ("centers", "radii") else fit, f).astype(np.float64)
+                            for f in _TEST_FIELDS])
     fit._test_cache = (h, fit.ok, rows)
     return rows
 
@@ -1025,14 +1031,15 @@ def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
             r2 = np.where(fit.ok & (fit.area > 0), np.pi * q / np.where(fit.area > 0, fit.area, 1.0), np.inf)
         cached = (key, 0.99 * np.nan_to_num(r2, nan=np.inf))
         fit._reach = cached
-    row = _test_rows(fit, h)[en, :10]                   # sphere centre, radius, centroid, normal
+    row = _test_rows(fit, h)[en, :_TEST_START[4]]        # sphere centre, radius, centroid, normal
+    ctr, rad, cen, nrm_v = (row[:, _TEST_COLUMNS[name]] for name in _TEST_FIELDS[:4])
     pts = points[ep]
-    rel = row[:, 0:3] - pts
+    rel = ctr - pts
     rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
-    rmin = rs - row[:, 3]
-    delta = np.abs(np.einsum("ij,ij->i", row[:, 7:10], row[:, 4:7] - pts))
+    rmin = rs - rad
+    delta = np.abs(np.einsum("ij,ij->i", nrm_v, cen - pts))
     # divided rather than multiplied: a finite threshold near the float maximum must not overflow
-    return (rmin > 0) & (rmin * rmin / _hessian_factor(delta, rs + row[:, 3]) >= cached[1][en])
+    return (rmin > 0) & (rmin * rmin / _hessian_factor(delta, rs + rad) >= cached[1][en])
 
 
 def _quadrature_bound(half, lmax, gnorm, area, delta, rmin, rmax):

@@ -153,10 +153,10 @@ def contour_integral_bounded(verts: np.ndarray, normal: np.ndarray, inf: np.ndar
     return _contour_slot_major(verts, normal, bounded=True)
 
 
-def _plain_bound(ex, ey, ez, na, nb, terms, rows):
+def _plain_bound(ex, ey, ez, na, terms, rows):
     """(R,) bound on ``|Σ_j t_j − Σ_j t_j^ext| / 2π`` for the float64 eq. 4 sums of ``rows`` (R,) of the
-    ``(K, F)`` slot-major arrays (``e = b − a``, ``na, nb`` = ``|a|², |b|²``, ``terms`` the float64
-    ``t_j``), every edge with ``a · b > 0`` (γ < π/2).
+    ``(K, F)`` slot-major arrays (``e = b − a``, ``na = |a|²``, ``terms`` the float64 ``t_j``), every edge
+    with ``a · b > 0`` (γ < π/2).
 
     Per edge, u = 2^-53 (:func:`_edge_geometry`'s formulas): ``a × b`` is computed from the end x with
     ``|x| <= 4 min(|a|, |b|)``, within ``4.3 u |x| |e|``; ``a · b`` within ``3 u |a| |b|``; with ``s² + d²
@@ -168,7 +168,8 @@ def _plain_bound(ex, ey, ez, na, nb, terms, rows):
     u = np.finfo(np.float64).eps / 2
     k = terms.shape[0]
     e_len = np.sqrt(ex[:, rows] ** 2 + ey[:, rows] ** 2 + ez[:, rows] ** 2)
-    big = np.sqrt(np.maximum(na[:, rows], nb[:, rows]))
+    na = na[:, rows]
+    big = np.sqrt(np.maximum(na, np.roll(na, -1, axis=0)))                  # max(|a|, |b|), b the next slot
     rel = np.divide(e_len, big, out=np.zeros_like(e_len), where=big > 0)
     per = 128.0 * rel + 32.0 + (k + 4) * np.abs(terms[:, rows])
     return u * _INV_2PI * per.sum(axis=0)
@@ -213,8 +214,7 @@ def _contour_slot_major(verts: np.ndarray, normal: np.ndarray, bounded: bool = F
         plain = bad & (d > 0.0).all(axis=0)
         rows = np.flatnonzero(plain)
         if len(rows):
-            nb = np.concatenate([na[1:], na[:1]])
-            bound[rows] = _plain_bound(ex, ey, ez, na, nb, terms, rows)
+            bound[rows] = _plain_bound(ex, ey, ez, na, terms, rows)
             bad &= ~plain
     if bad.any() and np.finfo(np.longdouble).eps < np.finfo(np.float64).eps:
         far_bad = None
