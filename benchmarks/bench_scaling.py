@@ -30,7 +30,8 @@ preparation (the proxy scene) apart.
         [--hidden 10000,100000,1000000] [--below 300] [--under 448] [--baseline aa9e604] [--baseline-max 100000]
         [--tolerance 1e-4] [--worker-points 1024] [--out docs/bench_scaling]
 
-Writes ``docs/bench_scaling.md``, ``.json`` and ``.png`` (log-log: time against polygons).
+Writes ``docs/bench_scaling.md``, ``.json`` and ``.png`` (log-log: time against polygons); an existing
+markdown file keeps what follows its :data:`KEEP_MARKER` line (hand-written measurements and readings).
 """
 
 from __future__ import annotations
@@ -368,10 +369,25 @@ def main(argv=None):
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:
-        Path(args.out + ".md").write_text(text)
+        Path(args.out + ".md").write_text(with_kept_sections(text, Path(args.out + ".md")))
         Path(args.out + ".json").write_text(json.dumps(results, indent=1))
         plot(results, args.out + ".png")
         log(f"wrote {args.out}.md, .json, .png")
+
+
+#: a line in a written ``--out`` markdown file from which on the rest is hand-written: a new run rewrites
+#: what comes before it and keeps the rest (measurements and readings added by hand)
+KEEP_MARKER = "<!-- hand-written below: kept when bench_scaling.py --out rewrites this file -->"
+
+
+def with_kept_sections(text: str, path: Path) -> str:
+    """``text`` followed by the hand-written part of the existing ``path`` (from :data:`KEEP_MARKER` on),
+    if it has one; a file without the marker is replaced whole (as before the marker existed)."""
+    if not path.exists():
+        return text
+    old = path.read_text()
+    at = old.find(KEEP_MARKER)
+    return text if at < 0 else text + "\n" + old[at:]
 
 
 def ratio_pair(core, subdivisions, args):
