@@ -124,10 +124,10 @@ def reset():
 def solve(prefix, *, tolerance=None, order=None, quiet=False):
     """The first pass, as the operator and the ``solve`` command run it; returns its report."""
     import_package()
-    from hemisphere_local_pass.blender.first_pass import StderrProgress, solve_first_pass
+    from hemisphere_local_pass.blender.first_pass import SolverProgressLines, solve_first_pass
 
     report = solve_first_pass(tolerance=tolerance, order=order,
-                              progress=None if quiet else StderrProgress(interval=5.0))
+                              progress=None if quiet else SolverProgressLines(interval=5.0))
     print(f"{prefix}: {report.summary()}", file=sys.stderr)
     return report
 

@@ -44,10 +44,10 @@ def first_pass(scene=None, *, tolerance=None, order=None, quiet=False, clusters=
     """Solve the first pass in this Blender session (``hemisphere_local_pass.blender.first_pass``): writes
     the FACE-domain ``radiosity`` attribute on every mesh; returns the report (progress on stderr)."""
     _import_package()
-    from hemisphere_local_pass.blender.first_pass import StderrProgress, solve_first_pass
+    from hemisphere_local_pass.blender.first_pass import SolverProgressLines, solve_first_pass
 
     report = solve_first_pass(scene, tolerance=tolerance, order=order, clusters=clusters,
-                              progress=None if quiet else StderrProgress(interval=5.0))
+                              progress=None if quiet else SolverProgressLines(interval=5.0))
     import resource
 
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB

@@ -41,14 +41,14 @@ CLUSTERS, TOLERANCE, ORDER = 300, 1e-2, 1
 def solved_radiance(subdivisions: int, clusters: int, tolerance: float, order: int, quiet: bool = False):
     """(n, 3) radiance of ``scenes.cornell_box(subdivisions, block_detail=1.05)``'s polygons, by the first pass."""
     c.import_package()
-    from hemisphere_local_pass.blender.first_pass import StderrProgress
+    from hemisphere_local_pass.blender.first_pass import SolverProgressLines
     from hemisphere_local_pass.first_pass import solve_radiosity
     from hemisphere_local_pass.scenes import cornell_box as numeric_box
 
     t0 = time.perf_counter()
     box = numeric_box(subdivisions, block_detail=1.05)
     result = solve_radiosity(box.scene(), box.reflectivity, box.emission, tolerance=tolerance, order=order,
-                             clusters=clusters or None, progress=None if quiet else StderrProgress(interval=5.0))
+                             clusters=clusters or None, progress=None if quiet else SolverProgressLines(interval=5.0))
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB
     print(f"cornell_box_100k: {result.summary()}; with the scene {time.perf_counter() - t0:.0f} s, peak RSS so far "
           f"{rss:.0f} MB", file=sys.stderr)

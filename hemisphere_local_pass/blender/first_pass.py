@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..first_pass import DEFAULT_TOLERANCE, FirstPassResult, make_solver
+from .stderr_lines import PREFIX
 
 __all__ = ["ORIGIN_ATTRIBUTE", "FirstPassJob", "FirstPassReport", "cli_main", "prepare", "solve_first_pass"]
 
@@ -274,8 +275,9 @@ def solve_first_pass(scene=None, *, progress=None, cancel=None, **kwargs) -> Fir
 
 
 # ------------------------------------------------------------------------------------------- CLI
-class StderrProgress:
-    """A progress line (percent, shots, unshot fraction, ETA) on stderr at most every ``interval`` s."""
+class SolverProgressLines:
+    """The solver's progress line (percent, shots, unshot fraction, ETA) on stderr at most every ``interval``
+    s, with the job's prefix (the local pass's lines are :class:`.stderr_lines.StderrProgress`)."""
 
     def __init__(self, stream=None, interval=1.0):
         self.stream = stream if stream is not None else sys.stderr
@@ -287,7 +289,7 @@ class StderrProgress:
         if now - self.last < self.interval and p.unshot_fraction > p.tolerance:
             return
         self.last = now
-        self.stream.write(f"hemisphere_local_pass: {p.message()}\n")
+        self.stream.write(f"{PREFIX}{p.message()}\n")
         self.stream.flush()
 
 
@@ -330,7 +332,7 @@ def cli_main(argv) -> int:
                              "(give another name)")
         report = solve_first_pass(attribute=args.attribute, tolerance=args.tolerance, order=args.order,
                                   double_sided=args.double_sided, clusters=args.clusters,
-                                  progress=None if args.quiet else StderrProgress())
+                                  progress=None if args.quiet else SolverProgressLines())
         from .blend_output import save_blend
 
         report.outputs.append(save_blend(output))

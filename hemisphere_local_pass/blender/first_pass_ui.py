@@ -61,10 +61,10 @@ class HLP_OT_solve_radiosity(bpy.types.Operator):
 
     def execute(self, context):
         from ..core import Cancelled
-        from .first_pass import StderrProgress, solve_first_pass
+        from .first_pass import SolverProgressLines, solve_first_pass
 
         try:  # without a window (background, scripts): progress lines on stderr
-            report = solve_first_pass(context.scene, progress=StderrProgress(interval=5.0) if bpy.app.background
+            report = solve_first_pass(context.scene, progress=SolverProgressLines(interval=5.0) if bpy.app.background
                                       else None)
         except (Cancelled, KeyboardInterrupt):
             self.report({'WARNING'}, "First pass cancelled; the scene is unchanged")
