@@ -7,8 +7,9 @@ For all receivers of a chunk together (every stage vectorised over receivers):
 3. level 1.5: the tile hierarchy, front to back, with coverage culling (:func:`.hierarchy.visit_tiles`):
    only the tiles above the horizon that no nearer occluder covers survive;
 4. clear tiles: surviving tiles nothing cuts are summed over their edges (:mod:`.clear_tiles`);
-5. the members of the other surviving tiles become candidates, clipped to the hemisphere
-   (:func:`.projection.hemisphere_candidates`);
+5. the other surviving tiles by quarters (:func:`.hierarchy.refine_cut_tiles`: a quarter inside one of
+   its tile's cutting volumes is dropped, a volume that misses a quarter leaves its list); the members of
+   the quarters left become candidates, clipped to the hemisphere (:func:`.projection.hemisphere_candidates`);
 6. level 2: the volumes that can hide part of each candidate, nearest first
    (:func:`.visibility.occluder_pairs`); then the exact visible fragments or signed terms, and eq. 4.
 
@@ -21,6 +22,9 @@ is over (receiver, merged face) and over the tiles that survive.
 
 from __future__ import annotations
 
+import copy
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import far_field as far_field_module
@@ -28,7 +32,7 @@ from .clear_tiles import TileEdges, clear_pairs, tile_edges
 from .culling import Occluders, build_occluders
 from .far_field import NodeEdges, ProxyCredit, clear_node_test, node_edges
 from .form_factor import contour_integral, contour_integral_bounded
-from .hierarchy import TileHierarchy, build_hierarchy, visit_tiles
+from .hierarchy import SubTiles, TileHierarchy, build_hierarchy, build_subtiles, refine_cut_tiles, visit_tiles
 from .parallel import Cancelled
 from .projection import hemisphere_candidates
 from .rowops import take_rows
@@ -124,6 +128,15 @@ def scene_hierarchy(scene: Scene, occ: Occluders) -> TileHierarchy:
     if cached is None or cached[0] is not occ:
         cached = (occ, build_hierarchy(occ, scene.poly_radii))
         scene._hierarchy = cached
+    return cached[1]
+
+
+def scene_subtiles(scene: Scene, occ: Occluders) -> SubTiles:
+    """The quarters of the scene's tiles (:func:`.hierarchy.build_subtiles`), cached on the scene."""
+    cached = getattr(scene, "_subtiles", None)
+    if cached is None or cached[0] is not occ:
+        cached = (occ, build_subtiles(occ, scene.poly_vertices, scene.poly_centers))
+        scene._subtiles = cached
     return cached[1]
 
 
@@ -269,7 +282,14 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
     """The candidate stage of :func:`visible` for the tile pairs ``cov.tiles``: ``(fragments, ff)``; with
     ``bounded`` (signed terms only) the fragments carry ``ff_bound`` (see :func:`visible`)."""
     tiles = cov.tiles
-    cand = hemisphere_candidates(scene, points, normals, limit, include, occ, tiles)
+    members = occ
+    if sv.inf is None and len(tiles.q):
+        # the cut tiles by quarters: hidden quarters and the volumes that miss a quarter cost nothing below
+        st = scene_subtiles(scene, occ)
+        cov = copy.copy(cov)
+        cov.tiles = tiles = refine_cut_tiles(st, tiles, sv, points)
+        members = _TileLists(st.ptr, st.members)
+    cand = hemisphere_candidates(scene, points, normals, limit, include, members, tiles)
     ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
     allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
     flat = None if cand.flat is None else (cand.flat, scene.poly_normals)
@@ -290,6 +310,15 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
         ff = np.maximum(frags.side * contour_by_width(frags, normals, points, flat), 0.0)
     return frags, ff
+
+
+@dataclass
+class _TileLists:
+    """The member lists :func:`.projection.hemisphere_candidates` reads (``tile_ptr``, ``tile_members``),
+    here those of the sub-tiles."""
+
+    tile_ptr: np.ndarray
+    tile_members: np.ndarray
 
 
 def contour_by_width(frags: Fragments, normals, points, flat=None, bounded: bool = False):

@@ -34,6 +34,12 @@ of the node corners', and its tolerance is smaller. At a leaf the tile takes exa
 level 1.5 against the volumes left in its list, so the tiles that survive, and the volumes listed for
 each, are the ones the dense per-tile test gives — only the work is output-sensitive: a hidden plane
 of 90,000 quads is culled at a handful of nodes per receiver instead of 5,600 tiles.
+
+Below the leaves (:class:`SubTiles`, :func:`refine_cut_tiles`): a tile that a shadow edge crosses has
+members hidden, cut and clear; its quarters take the node tests against the tile's list, so the members
+of a hidden quarter are no candidates and a quarter's members are not tested against the volumes that
+miss it (measured on the 190,774-polygon box, 64 receivers exact, first group of receivers: 11,125 of
+14,681 (receiver, quarter) pairs left, 24 % hidden).
 """
 
 from __future__ import annotations
@@ -47,7 +53,8 @@ from .rowops import take_rows
 from .tolerances import COORD_EPS, PLANE_EPS
 from .visibility import _cone, _test_pairs
 
-__all__ = ["TileHierarchy", "TilePairs", "build_hierarchy", "visit_tiles"]
+__all__ = ["SubTiles", "TileHierarchy", "TilePairs", "build_hierarchy", "build_subtiles", "refine_cut_tiles",
+           "visit_tiles"]
 
 #: children per internal node
 FANOUT = 4
@@ -207,6 +214,99 @@ class TilePairs:
         np.add.at(ptr, b + 1, 1)
         return TilePairs(self.point[sel], self.tile[sel], self.tested[sel], np.cumsum(ptr), q, self.visited,
                          self.nodes)
+
+
+@dataclass
+class SubTiles:
+    """The quarters of every tile (``S`` sub-tiles): a 2 × 2 grid over the tile's two longest extents, by
+    member centre; tiles of fewer than :data:`SUBTILE_FROM` members are their own one sub-tile.
+
+    Attributes:
+        tile_ptr: (T+1,) each tile's sub-tiles ``tile_ptr[t]:tile_ptr[t+1]``; ptr: (S+1,), members: (n,)
+            CSR lists of every sub-tile's polygons (a tile's sub-tiles list exactly its members); mid, half:
+            (S, 3) the centre and half extents of each sub-tile's axis-aligned box over its members'
+            vertices (as :class:`TileHierarchy`'s, for :func:`_node_tests`).
+    """
+
+    tile_ptr: np.ndarray
+    ptr: np.ndarray
+    members: np.ndarray
+    mid: np.ndarray
+    half: np.ndarray
+
+
+#: tiles with at least this many members are split into quarters (:class:`SubTiles`)
+SUBTILE_FROM = 8
+
+
+def build_subtiles(occ, poly_vertices: np.ndarray, poly_centers: np.ndarray) -> SubTiles:
+    """The :class:`SubTiles` of ``occ``'s tiles (``poly_vertices (n, K, 3)``, padding repeating a vertex;
+    ``poly_centers (n, 3)``), O(n log n)."""
+    n_t = len(occ.tile_ptr) - 1
+    size = np.diff(occ.tile_ptr)
+    mem = occ.tile_members
+    t_of = np.repeat(np.arange(n_t), size)
+    c = poly_centers[mem]
+    if len(mem):
+        lo = np.minimum.reduceat(c, occ.tile_ptr[:-1][size > 0], axis=0)
+        hi = np.maximum.reduceat(c, occ.tile_ptr[:-1][size > 0], axis=0)
+    else:
+        lo = hi = np.zeros((0, 3))
+    c_lo = np.zeros((n_t, 3))
+    ext = np.zeros((n_t, 3))
+    c_lo[size > 0], ext[size > 0] = lo, hi - lo
+    axes = np.argsort(ext, axis=1, kind="stable")[:, ::-1]
+    split = size >= SUBTILE_FROM
+    key = np.zeros(len(mem), dtype=np.int64)
+    for col in (0, 1):
+        ax = axes[t_of, col]
+        e = ext[t_of, ax]
+        half_way = c_lo[t_of, ax] + 0.5 * e
+        key = 2 * key + ((c[np.arange(len(mem)), ax] > half_way) & (e > 0)).astype(np.int64)
+    key = np.where(split[t_of], key, 0)
+    order = np.lexsort((key, t_of))                       # stable: tile order kept within each quarter
+    members = mem[order]
+    sk, st = key[order], t_of[order]
+    new = np.r_[True, (st[1:] != st[:-1]) | (sk[1:] != sk[:-1])] if len(mem) else np.zeros(0, dtype=bool)
+    starts = np.flatnonzero(new)
+    ptr = np.append(starts, len(mem)).astype(np.int64)
+    sub_tile = st[starts]
+    tile_ptr = np.zeros(n_t + 1, dtype=np.int64)
+    np.add.at(tile_ptr, sub_tile + 1, 1)
+    pv = poly_vertices[members]
+    if len(starts):
+        blo = np.minimum.reduceat(pv.min(axis=1), starts, axis=0)
+        bhi = np.maximum.reduceat(pv.max(axis=1), starts, axis=0)
+    else:
+        blo = bhi = np.zeros((0, 3))
+    return SubTiles(np.cumsum(tile_ptr), ptr, members, 0.5 * (blo + bhi), 0.5 * (bhi - blo))
+
+
+def refine_cut_tiles(st: SubTiles, tiles: TilePairs, sv, points) -> TilePairs:
+    """``tiles`` (the pairs whose members become candidates) as (receiver, sub-tile) pairs, ``tile`` then
+    a sub-tile of ``st``: a sub-tile that lies inside one of its tile's cutting volumes is dropped (every
+    member is hidden), and a volume is dropped from a sub-tile's list when the sub-tile's box lies outside
+    one of its planes (no member can be cut by it) — both with :func:`_node_tests`' margin, so that they
+    are implied by the tests each member would take (its vertices lie in the box, its tolerance is
+    smaller): the candidates' fragments are the same, fewer polygons and pairs cost them. Without a
+    one-sided limit only (``sv.inf`` None)."""
+    b, sub = expand(tiles.tile, st.tile_ptr, np.arange(len(st.mid)))
+    eb, eq = expand(b, tiles.ptr, tiles.q)                   # (sub pair, volume) entries, the tile's lists
+    keep = np.ones(len(b), dtype=bool)
+    keep_e = np.ones(len(eb), dtype=bool)
+    # only tiles split in several sub-tiles gain anything (a whole tile was tested already)
+    test = np.flatnonzero(np.diff(st.tile_ptr)[tiles.tile[b[eb]]] > 1)
+    if len(test):
+        covered, outside = _node_tests(st, sub[eb[test]], tiles.point[b[eb[test]]], eq[test], sv, points)
+        keep[eb[test[covered]]] = False
+        keep_e[test[outside]] = False
+    keep_e &= keep[eb]
+    new = np.full(len(b), -1, dtype=np.int64)
+    new[keep] = np.arange(int(keep.sum()))
+    ptr = np.zeros(int(keep.sum()) + 1, dtype=np.int64)
+    np.add.at(ptr, new[eb[keep_e]] + 1, 1)
+    return TilePairs(tiles.point[b[keep]], sub[keep], tiles.tested[b[keep]], np.cumsum(ptr), eq[keep_e],
+                     tiles.visited, tiles.nodes)
 
 
 def _box_range(h: TileHierarchy, node, point, normal, offset, points):

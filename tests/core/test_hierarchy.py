@@ -6,6 +6,7 @@ and nothing about the answer changes.
 * Culling decisions of the hierarchy are exact: with every node decision switched off (only the tiles'
   own tests) the results are the same to 1e-13, on a box with a window onto a plane behind it.
 * A plane a receiver lies in costs nothing: none of its tiles survives.
+* Cut tiles by quarters: the same factors and irradiance to 1e-13, fewer candidates.
 * The tree's boxes and spheres contain their children's; every tile is reached once.
 * Merged faces (the vectorised merge): grids merge into one convex face, L-shapes, rings and
   T-junctions do not; scene preparation reports progress and can be cancelled.
@@ -249,3 +250,53 @@ def test_float32_rounded_faces_get_convex_cores(monkeypatch):
     ref = form_factors(sc, p, n, workers=1, occluders=plain)
     assert np.abs(f - ref).max() <= 1e-13
     assert np.abs(f.sum(axis=1) - 1).max() <= 1e-12
+
+
+def test_subtiles_partition_every_tile_and_their_boxes_hold_their_members():
+    box = cornell_box(20)
+    scene = box.scene(radiance=box.emission + 0.5 * box.reflectivity)
+    occ = prepare_scene(scene)
+    st = chunk.scene_subtiles(scene, occ)
+    n_t = len(occ.tile_ptr) - 1
+    assert st.tile_ptr[-1] == len(st.mid) > n_t                 # some tiles are split
+    for t in range(n_t):
+        own = np.sort(occ.tile_members[occ.tile_ptr[t]:occ.tile_ptr[t + 1]])
+        subs = range(st.tile_ptr[t], st.tile_ptr[t + 1])
+        assert 1 <= len(subs) <= 4
+        got = np.concatenate([st.members[st.ptr[s]:st.ptr[s + 1]] for s in subs])
+        assert np.array_equal(np.sort(got), own)
+        for s in subs:
+            v = scene.poly_vertices[st.members[st.ptr[s]:st.ptr[s + 1]]].reshape(-1, 3)
+            assert (np.abs(v - st.mid[s]) <= st.half[s] * (1 + 1e-15) + 1e-15).all()
+
+
+@pytest.mark.parametrize("tolerance", [0.0, 1e-4])
+def test_cut_tiles_by_quarters_change_nothing_and_drop_hidden_quarters(monkeypatch, tolerance):
+    """The quarters' decisions (hidden quarter, volume that misses a quarter) against the tiles' lists as
+    they are: the same factors and irradiance to 1e-13, and fewer candidates."""
+    box = cornell_box(20)
+    scene = box.scene(radiance=box.emission + 0.5 * box.reflectivity)
+    p, n = receivers(box, scene, m=32, seed=5)
+    counted = []
+    real_hc = chunk.hemisphere_candidates
+
+    def counting(*args):
+        cand = real_hc(*args)
+        counted.append(len(cand.point))
+        return cand
+
+    monkeypatch.setattr(chunk, "hemisphere_candidates", counting)
+    tol = tolerance * irradiance(scene, p, n).mean(axis=0)
+    f = form_factors(scene, p, n)
+    counted.clear()
+    h = irradiance(scene, p, n, tolerance=tol)
+    quarters = sum(counted)
+    monkeypatch.setattr(chunk, "refine_cut_tiles", lambda st, tiles, sv, points: tiles)
+    monkeypatch.setattr(chunk, "scene_subtiles", lambda scene, occ: hierarchy.SubTiles(
+        None, occ.tile_ptr, occ.tile_members, None, None))
+    f0 = form_factors(scene, p, n)
+    counted.clear()
+    h0 = irradiance(scene, p, n, tolerance=tol)
+    assert np.abs(f - f0).max() <= 1e-13
+    assert np.abs(h - h0).max() <= 1e-13 * np.abs(h0).max()
+    assert quarters < sum(counted)          # (measured: 15,532 → 12,381 candidates exact, 640 → 590 at 1e-4)
