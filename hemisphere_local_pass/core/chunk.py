@@ -23,7 +23,6 @@ is over (receiver, merged face) and over the tiles that survive.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -282,13 +281,13 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
     """The candidate stage of :func:`visible` for the tile pairs ``cov.tiles``: ``(fragments, ff)``; with
     ``bounded`` (signed terms only) the fragments carry ``ff_bound`` (see :func:`visible`)."""
     tiles = cov.tiles
-    members = occ
+    members = (occ.tile_ptr, occ.tile_members)
     if sv.inf is None and len(tiles.q):
         # the cut tiles by quarters: hidden quarters and the volumes that miss a quarter cost nothing below
         st = scene_subtiles(scene, occ)
         cov = copy.copy(cov)
         cov.tiles = tiles = refine_cut_tiles(st, tiles, sv, points)
-        members = _TileLists(st.ptr, st.members)
+        members = (st.ptr, st.members)
     cand = hemisphere_candidates(scene, points, normals, limit, include, members, tiles)
     ptr, ids, planes, hidden = occluder_pairs(cand, sv, table, cov, occ, scene, points)
     allc = Fragments(cand.verts, cand.inf, cand.counts, cand.point, cand.poly, cand.side, np.arange(len(hidden)))
@@ -310,15 +309,6 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
         # a fragment's exact factor is >= 0; rounding can leave -1e-17 on a sliver
         ff = np.maximum(frags.side * contour_by_width(frags, normals, points, flat), 0.0)
     return frags, ff
-
-
-@dataclass
-class _TileLists:
-    """The member lists :func:`.projection.hemisphere_candidates` reads (``tile_ptr``, ``tile_members``),
-    here those of the sub-tiles."""
-
-    tile_ptr: np.ndarray
-    tile_members: np.ndarray
 
 
 def contour_by_width(frags: Fragments, normals, points, flat=None, bounded: bool = False):

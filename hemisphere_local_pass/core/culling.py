@@ -736,34 +736,11 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     m_sorted = members[order]
     g_start = np.flatnonzero(np.r_[True, m_sorted[1:] != m_sorted[:-1]])
     g_size = np.diff(np.append(g_start, n))
-    g_of = np.repeat(np.arange(len(g_start)), g_size)
-    c = scene.poly_centers[order]
     cells = np.maximum(1, np.rint(np.sqrt(g_size / TILE_SIZE))).astype(np.int64)
-    c_lo = np.minimum.reduceat(c, g_start, axis=0)
-    ext = np.maximum.reduceat(c, g_start, axis=0) - c_lo
-    axes = np.argsort(ext, axis=1, kind="stable")[:, ::-1]
-    keys = np.zeros(n, dtype=np.int64)
-    split = cells[g_of] > 1
-    if split.any():
-        rows = np.flatnonzero(split)
-        g = g_of[rows]
-        cg = cells[g]
-        ij = []
-        for col in (0, 1):
-            ax = axes[g, col]
-            e = ext[g, ax]
-            ij.append(np.minimum((c[rows, ax] - c_lo[g, ax]) / np.maximum(e, 1e-300) * cg, cg - 1).astype(np.int64))
-        keys[rows] = ij[0] * cg + ij[1]
-    t_srt = np.lexsort((keys, g_of))
-    sk_g, sk_k = g_of[t_srt], keys[t_srt]
-    new_t = np.r_[True, (sk_g[1:] != sk_g[:-1]) | (sk_k[1:] != sk_k[:-1])]
-    t_id = np.cumsum(new_t) - 1
+    t_srt, t_start, _ = grid_cells(scene.poly_centers[order], g_start, cells)
     tile_of = np.empty(n, dtype=np.int64)
-    tile_of[order[t_srt]] = t_id
-    t_start = np.flatnonzero(new_t)
-    pv = scene.poly_vertices[order[t_srt]]                                    # (n, K, 3), padding repeats
-    lo = np.minimum.reduceat(pv.min(axis=1), t_start, axis=0)
-    hi = np.maximum.reduceat(pv.max(axis=1), t_start, axis=0)
+    tile_of[order[t_srt]] = np.repeat(np.arange(len(t_start)), np.diff(np.append(t_start, n)))
+    lo, hi = member_boxes(scene.poly_vertices[order[t_srt]], t_start)
     bits = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=bool)   # (8, 3)
     corners = np.where(bits[None], hi[:, None, :], lo[:, None, :])
     occ_of = m_sorted[t_srt][t_start]
@@ -773,6 +750,48 @@ def _tiles(scene: Scene, members: np.ndarray, n_o: int):
     tile_ptr = np.zeros(len(corners) + 1, dtype=np.int64)
     np.add.at(tile_ptr, tile_of + 1, 1)
     return tile_of, corners, centers, radii, occ_of.astype(np.int64), np.cumsum(tile_ptr), tile_members
+
+
+def grid_cells(c: np.ndarray, g_start: np.ndarray, cells: np.ndarray):
+    """Every group of points split by a ``cells × cells`` grid over the group's two longest extents.
+
+    Args:
+        c: (n, 3) points, sorted by group; g_start: (G,) each group's first point (``g_start[0] = 0``, no
+            group empty); cells: (G,) int >= 1 grid cells per side (1: the group stays whole).
+    Returns:
+        ``order (n,)`` the points by (group, cell), stable within a cell; ``start (C,)`` each non-empty
+        cell's first position in ``order``; ``group (C,)`` each cell's group.
+    """
+    n = len(c)
+    g_of = np.repeat(np.arange(len(g_start)), np.diff(np.append(g_start, n)))
+    keys = np.zeros(n, dtype=np.int64)
+    split = cells[g_of] > 1
+    if split.any():
+        c_lo = np.minimum.reduceat(c, g_start, axis=0)
+        ext = np.maximum.reduceat(c, g_start, axis=0) - c_lo
+        axes = np.argsort(ext, axis=1, kind="stable")[:, ::-1]
+        rows = np.flatnonzero(split)
+        g = g_of[rows]
+        cg = cells[g]
+        ij = []
+        for col in (0, 1):
+            ax = axes[g, col]
+            e = ext[g, ax]
+            ij.append(np.minimum((c[rows, ax] - c_lo[g, ax]) / np.maximum(e, 1e-300) * cg, cg - 1).astype(np.int64))
+        keys[rows] = ij[0] * cg + ij[1]
+    order = np.lexsort((keys, g_of))
+    sk_g, sk_k = g_of[order], keys[order]
+    start = np.flatnonzero(np.r_[True, (sk_g[1:] != sk_g[:-1]) | (sk_k[1:] != sk_k[:-1])]) if n \
+        else np.zeros(0, dtype=np.int64)
+    return order, start, sk_g[start]
+
+
+def member_boxes(pv: np.ndarray, start: np.ndarray):
+    """``(lo, hi)`` (C, 3): the axis-aligned box of each run ``start[i]:start[i+1]`` of polygons ``pv (n, K,
+    3)`` (padding slots repeat a vertex)."""
+    if not len(start):
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return np.minimum.reduceat(pv.min(axis=1), start, axis=0), np.maximum.reduceat(pv.max(axis=1), start, axis=0)
 
 
 def _hull_ok(k_pts, la, e, nrm) -> bool:

@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .csr import expand
+from .culling import grid_cells, member_boxes
 from .rowops import take_rows
 from .tolerances import COORD_EPS, PLANE_EPS
 from .visibility import _cone, _test_pairs
@@ -241,45 +242,16 @@ SUBTILE_FROM = 8
 
 def build_subtiles(occ, poly_vertices: np.ndarray, poly_centers: np.ndarray) -> SubTiles:
     """The :class:`SubTiles` of ``occ``'s tiles (``poly_vertices (n, K, 3)``, padding repeating a vertex;
-    ``poly_centers (n, 3)``), O(n log n)."""
-    n_t = len(occ.tile_ptr) - 1
+    ``poly_centers (n, 3)``): the tiles' own grid rule (:func:`.culling.grid_cells`) with 2 × 2 cells."""
     size = np.diff(occ.tile_ptr)
-    mem = occ.tile_members
-    t_of = np.repeat(np.arange(n_t), size)
-    c = poly_centers[mem]
-    if len(mem):
-        lo = np.minimum.reduceat(c, occ.tile_ptr[:-1][size > 0], axis=0)
-        hi = np.maximum.reduceat(c, occ.tile_ptr[:-1][size > 0], axis=0)
-    else:
-        lo = hi = np.zeros((0, 3))
-    c_lo = np.zeros((n_t, 3))
-    ext = np.zeros((n_t, 3))
-    c_lo[size > 0], ext[size > 0] = lo, hi - lo
-    axes = np.argsort(ext, axis=1, kind="stable")[:, ::-1]
-    split = size >= SUBTILE_FROM
-    key = np.zeros(len(mem), dtype=np.int64)
-    for col in (0, 1):
-        ax = axes[t_of, col]
-        e = ext[t_of, ax]
-        half_way = c_lo[t_of, ax] + 0.5 * e
-        key = 2 * key + ((c[np.arange(len(mem)), ax] > half_way) & (e > 0)).astype(np.int64)
-    key = np.where(split[t_of], key, 0)
-    order = np.lexsort((key, t_of))                       # stable: tile order kept within each quarter
-    members = mem[order]
-    sk, st = key[order], t_of[order]
-    new = np.r_[True, (st[1:] != st[:-1]) | (sk[1:] != sk[:-1])] if len(mem) else np.zeros(0, dtype=bool)
-    starts = np.flatnonzero(new)
-    ptr = np.append(starts, len(mem)).astype(np.int64)
-    sub_tile = st[starts]
-    tile_ptr = np.zeros(n_t + 1, dtype=np.int64)
-    np.add.at(tile_ptr, sub_tile + 1, 1)
-    pv = poly_vertices[members]
-    if len(starts):
-        blo = np.minimum.reduceat(pv.min(axis=1), starts, axis=0)
-        bhi = np.maximum.reduceat(pv.max(axis=1), starts, axis=0)
-    else:
-        blo = bhi = np.zeros((0, 3))
-    return SubTiles(np.cumsum(tile_ptr), ptr, members, 0.5 * (blo + bhi), 0.5 * (bhi - blo))
+    order, start, tile = grid_cells(poly_centers[occ.tile_members], occ.tile_ptr[:-1],
+                                    np.where(size >= SUBTILE_FROM, 2, 1))
+    members = occ.tile_members[order]
+    lo, hi = member_boxes(poly_vertices[members], start)
+    tile_ptr = np.zeros(len(size) + 1, dtype=np.int64)
+    np.add.at(tile_ptr, tile + 1, 1)
+    return SubTiles(np.cumsum(tile_ptr), np.append(start, len(members)).astype(np.int64), members,
+                    0.5 * (lo + hi), 0.5 * (hi - lo))
 
 
 def refine_cut_tiles(st: SubTiles, tiles: TilePairs, sv, points) -> TilePairs:
@@ -295,9 +267,10 @@ def refine_cut_tiles(st: SubTiles, tiles: TilePairs, sv, points) -> TilePairs:
     keep = np.ones(len(b), dtype=bool)
     keep_e = np.ones(len(eb), dtype=bool)
     # only tiles split in several sub-tiles gain anything (a whole tile was tested already)
-    test = np.flatnonzero(np.diff(st.tile_ptr)[tiles.tile[b[eb]]] > 1)
+    pe = b[eb]
+    test = np.flatnonzero(np.diff(st.tile_ptr)[tiles.tile[pe]] > 1)
     if len(test):
-        covered, outside = _node_tests(st, sub[eb[test]], tiles.point[b[eb[test]]], eq[test], sv, points)
+        covered, outside = _node_tests(st, sub[eb[test]], tiles.point[pe[test]], eq[test], sv, points)
         keep[eb[test[covered]]] = False
         keep_e[test[outside]] = False
     keep_e &= keep[eb]

@@ -125,19 +125,21 @@ class Candidates:
     pair: np.ndarray | None = None
 
 
-def hemisphere_candidates(scene: Scene, points, normals, limit, include, occluders, tiles) -> Candidates:
+def hemisphere_candidates(scene: Scene, points, normals, limit, include, member_lists, tiles) -> Candidates:
     """Cull and clip every polygon to the upper hemisphere of every receiver.
 
     Args:
         points, normals: (m, 3) receivers; limit: (m, 3) limit directions (zero rows: none) or None.
         include: optional bool of pairs to consider at all (e.g. emitters only), broadcast to (m, n).
-        occluders: the scene's :class:`~.culling.Occluders`; tiles: the (receiver, tile) pairs whose
-            members are to be projected (:class:`.hierarchy.TilePairs`: above the horizon, not known to
-            be hidden, not taken by the fast path), so polygons elsewhere cost nothing here.
+        member_lists: ``(ptr, members)`` the CSR member lists that ``tiles.tile`` indexes (the scene's
+            tiles, ``Occluders.tile_ptr, tile_members``, or their quarters, :class:`.hierarchy.SubTiles`);
+        tiles: the (receiver, tile) pairs whose members are to be projected (:class:`.hierarchy.TilePairs`:
+            above the horizon, not known to be hidden, not taken by the fast path), so polygons elsewhere
+            cost nothing here.
     Returns:
         the candidates (polygons seen edge-on, with P in their plane, are left out).
     """
-    pair, ci = expand(tiles.tile, occluders.tile_ptr, occluders.tile_members)
+    pair, ci = expand(tiles.tile, *member_lists)
     cp = tiles.point[pair]
     if include is not None:
         inc = np.asarray(include)
