@@ -697,6 +697,11 @@ class NodeFits:
         mismatch: (N, 3) ``lmax × Σ (|A_rect − A| + RECT_FILL A)`` over the tiles: what the rectangles'
             area beyond the members' can add; lmax: (N, 3) ``|a| + |g| × diagonal`` (>= |L_lin| on the
             node); half_side: (N,) the largest half side of its rectangles.
+        eps2: (N, 3, 3) per channel ``E2 = Σ_i ε_i ∫_i (x − c)(x − c)ᵀ dA`` in the node's frame, as its
+            components (11, 12, 22): the residual's second moment, whose term against the kernel's
+            Hessian at c the proxy adds; frame: (N, 2, 3) that frame's in-plane unit axes e1, e2;
+            resid_moment3: (N, 3) ``Σ_i |ε_i| A_i (|c_i − c| + ρ_i)³ >= Σ_i |ε_i| ∫_i |x − c|³ dA`` (what
+            is left of the residual's term is third order: :func:`linear_node_test`).
     """
 
     ok: np.ndarray
@@ -718,6 +723,9 @@ class NodeFits:
     resid_moment: np.ndarray | None = None
     lmax: np.ndarray | None = None
     half_side: np.ndarray | None = None
+    eps2: np.ndarray | None = None
+    resid_moment3: np.ndarray | None = None
+    frame: np.ndarray | None = None
 
 
 def _polygon_moments(verts, counts):
@@ -773,6 +781,9 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
                    z3.copy(), z3.copy(), z3.copy(),
                    np.zeros((n_nodes, 3, 3)), z3.copy(), z3.copy(), np.zeros(n_nodes), np.zeros((n_nodes, 3, 3)),
                    np.zeros(n_nodes), np.zeros(n_nodes), z3.copy(), z3.copy(), z3.copy(), z3.copy())
+    out.eps2 = z3.copy()[:, :, None].repeat(3, axis=2)
+    out.frame = np.zeros((n_nodes, 2, 3))
+    out.resid_moment3 = z3.copy()
     if not len(mem_tree):
         return out
     # every node of a face in its root's frame: normal of the root's first member, e1 along that member's
@@ -844,6 +855,14 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
         moment_i = tr_i + ap * dcn**2                                    # ∫_i |x − c|² dA (parallel axes)
         inertia = np.add.reduceat(moment_i, starts)
         res_moment = np.add.reduceat(np.abs(eps) * moment_i[:, None], starts)
+        # the residual's second moment about c in the frame, ∫_i (x − c)(x − c)ᵀ = J_i + A_i dc dcᵀ
+        e1v, e2v = e1[v], e2[v]
+        sj = sec_p[mem]
+        m_i = np.stack([np.einsum("pi,pij,pj->p", e1v, sj, e1v) + ap * dc[:, 0] ** 2,
+                        np.einsum("pi,pij,pj->p", e1v, sj, e2v) + ap * dc[:, 0] * dc[:, 1],
+                        np.einsum("pi,pij,pj->p", e2v, sj, e2v) + ap * dc[:, 1] ** 2], axis=1)   # (P, 3)
+        eps2 = np.add.reduceat(eps[:, :, None] * m_i[:, None, :], starts)                      # (B, 3, 3)
+        res_moment3 = np.add.reduceat(np.abs(eps) * (ap * (dcn + rho_p[mem]) ** 3)[:, None], starts)
         jsum = np.add.reduceat(sec_p[mem], starts)                                              # (B, 3, 3)
         saw = np.add.reduceat(tr_i * (dcn + 0.5 * rho_p[mem]), starts)
         # orthogonality defects as computed, plus their rounding
@@ -862,6 +881,9 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
         out.grad[part] = e1p[:, :, None] * gq[:, None, 0, :] + e2p[:, :, None] * gq[:, None, 1, :]
         out.resid[part] = res
         out.resid_moment[part] = res_moment
+        out.eps2[part] = eps2
+        out.frame[part] = np.stack([e1[part], e2[part]], axis=1)
+        out.resid_moment3[part] = res_moment3
         out.gnorm[part] = gnorm
         out.inertia[part] = inertia
         out.jsum[part] = jsum
@@ -912,10 +934,16 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     (π |u|⁴)`` is the kernel of dF (``u = x − P``, ``δ`` P's distance from the plane). Inside member i,
     ``L_i − L_lin(x) = ε_i − g·(x − c_i)``, so the error is, per channel,
 
-    * ``π ∫ ε k``, ε piecewise constant with ``∫ ε = ∫ ε (x − c) = 0`` (the fit's normal equations):
-      ``= π ∫ ε (k − k(c) − ∇k(c)·(x − c))``, at most ``π ½ H ∫ |ε| |x − c|² = π ½ H Σ_i |ε_i| ∫_i |x −
-      c|² dA`` (``resid_moment``; at most ``π max|ε| ½ H I``: a shadow edge's large ε weighs only its
-      own members' moments);
+    * ``π ∫ ε k``, ε piecewise constant with ``∫ ε = ∫ ε (x − c) = 0`` (the fit's normal equations),
+      less the term the proxy adds for it, ``C2 = π ½ ∇²k(c) : E2`` (``eps2``, the residual's second
+      moment about c): ``π ∫ ε (k − k(c) − ∇k(c)·(x − c)) − C2``. Two bounds, the smaller is used:
+      ``π ½ H Σ_i |ε_i| ∫_i |x − c|² dA`` (``resid_moment``: a shadow edge's large ε weighs only its own
+      members' moments) plus ``|C2| <= π ½ H_c × resid_moment`` (``H_c = κ |δ| / (π r_c⁵)``, the same
+      Hessian bound at c alone: E2 is a sum of ε_i times in-plane positive semi-definite moments); or the
+      Taylor remainder of third order, ``π H3 / 6 Σ_i |ε_i| ∫_i |x − c|³ dA`` (``resid_moment3``), with
+      ``H3 = κ3 |δ| / (π r_min⁶)`` a bound on k's third in-plane derivative over the sphere
+      (:func:`_third_factor`). The first wins near P, the second once the node is small against its
+      distance (the ratio is about ``2 R / r_min``);
     * ``π Σ_i g·∫_i (x − c_i)(k(x) − k(c_i))`` minus the sawtooth term: Taylor about c_i to second order,
       then ``∇k(c_i) = ∇k(c) + O(H |c_i − c|)``: at most ``π |g| H Σ_i tr J_i (|c_i − c| + ρ_i / 2)``;
 
@@ -927,8 +955,9 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     28`` at grazing; and the rounding of the fit (``k <= |δ| / (π r³)``, ``|∇k| <= 3 |δ| / (π r⁴)`` at c)
     and the rectangle's area beyond the members':
 
-        |error| <= |δ| (κ/2 resid_moment / r_min⁵ + κ |g| saw / r_min⁵ + defect0 / r_c³ + 3 defect1 / r_c⁴
-                        + mismatch / r_min³) + the rule's error (:func:`_quadrature_bound`)
+        |error| <= |δ| (min(κ/2 resid_moment (1 / r_min⁵ + 1 / r_c⁵), κ3/6 resid_moment3 / r_min⁶)
+                        + κ |g| saw / r_min⁵ + defect0 / r_c³ + 3 defect1 / r_c⁴ + mismatch / r_min³)
+                 + the rule's error (:func:`_quadrature_bound`)
 
     (``r_c = |c − P|``). The proxy is taken when this is at most the tolerance times a lower bound of the
     node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the members' lowest
@@ -940,7 +969,7 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
     # every receiver-independent term of an entry in one gathered row (one random access per entry)
     row = _test_rows(fit, h)[en]
-    ctr, rad, cen, nrm_v, rmom, gn, saw, d0, d1, mism, lmax, area, inertia, half, ok = \
+    ctr, rad, cen, nrm_v, rmom, gn, saw, d0, d1, mism, lmax, area, inertia, half, ok, rmom3 = \
         (row[:, _TEST_COLUMNS[name]] for name in _TEST_FIELDS)
     ok = ok > 0
     pts = points[ep]
@@ -964,7 +993,10 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     rc = np.where(ok, rc, 1.0)
     r5 = rmin**5
     kappa = _hessian_factor(delta, rmax)
-    bound = delta[:, None] * ((0.5 * kappa / r5)[:, None] * rmom + gn * (kappa * saw / r5)[:, None]
+    # the residual's term: second order (with |C2| at c), or third order once the node is small enough
+    second = (0.5 * kappa * (1.0 / r5 + 1.0 / rc**5))[:, None] * rmom
+    third = (_third_factor(delta, rmax) / (6.0 * r5 * rmin))[:, None] * rmom3
+    bound = delta[:, None] * (np.minimum(second, third) + gn * (kappa * saw / r5)[:, None]
                               + d0 / (rc**3)[:, None] + 3.0 * d1 / (rc**4)[:, None]
                               + mism / (rmin**3)[:, None]) * (1.0 + SAFETY)
     bound += _quadrature_bound(half, lmax, gn, area, delta, rmin, rmax)
@@ -983,15 +1015,15 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
 
 #: what :func:`linear_node_test` reads per node, in :func:`_test_rows`'s column order, and the widths
 _TEST_FIELDS = ("centers", "radii", "centre", "normal", "resid_moment", "gnorm", "saw", "defect0", "defect1",
-                "mismatch", "lmax", "area", "inertia", "half_side", "ok")
-_TEST_WIDTHS = (3, 1, 3, 3, 3, 3, 1, 3, 3, 3, 3, 1, 1, 1, 1)
+                "mismatch", "lmax", "area", "inertia", "half_side", "ok", "resid_moment3")
+_TEST_WIDTHS = (3, 1, 3, 3, 3, 3, 1, 3, 3, 3, 3, 1, 1, 1, 1, 3)
 _TEST_START = np.concatenate([[0], np.cumsum(_TEST_WIDTHS)])
 #: each field's columns: a slice (3 wide) or an index (1 wide: the gathered value is then (E,))
 _TEST_COLUMNS = {f: (slice(a, a + w) if w > 1 else a) for f, a, w in zip(_TEST_FIELDS, _TEST_START, _TEST_WIDTHS)}
 
 
 def _test_rows(fit: NodeFits, h) -> np.ndarray:
-    """(N, 33) per node the :data:`_TEST_FIELDS` (``centers``, ``radii`` the hierarchy's bounding spheres,
+    """(N, 36) per node the :data:`_TEST_FIELDS` (``centers``, ``radii`` the hierarchy's bounding spheres,
     the rest ``fit``'s, ``ok`` as 1.0 / 0.0) side by side, cached on ``fit``: :func:`linear_node_test` and
     :func:`linear_may_fit` gather one row per entry instead of a dozen arrays."""
     cached = getattr(fit, "_test_cache", None)
@@ -1011,25 +1043,47 @@ def _hessian_factor(delta, rmax):
     return (8.0 * np.sqrt(s2) + np.maximum(4.0, 24.0 * s2 - 4.0)) * (1.0 + 1e-12)
 
 
+def _third_factor(delta, rmax):
+    """(E,) ``κ3 = 3 max(4, 24 s² − 4) + max_{|t| <= s} |192 t³ − 72 t|`` (``s`` as in
+    :func:`_hessian_factor`): ``|u|⁶`` times a bound on the third in-plane derivative of ``(N·u)|u|^-4``
+    over a node's bounding sphere. For unit v, ``t = û·v``: ``D³_v [(N·u) g] = 3 (N·v) D²_v g + (N·u) D³_v g``
+    with ``g = |u|^-4``, ``|u|⁶ D²_v g = 24 t² − 4`` and ``|u|⁷ D³_v g = 72 t − 192 t³``; ``|N·v|, |N·û| <= 1``,
+    and v in the plane has ``|t| <= s``. The cubic's largest magnitude on [0, s] is at s or at its
+    turning point ``1/√8`` (``12√2``). 29 head on, at most 180 at grazing. Rounded up by a relative 1e-12."""
+    s2 = np.clip(1.0 - (delta / rmax) ** 2, 0.0, 1.0)
+    s = np.sqrt(s2)
+    cubic = np.maximum(np.abs(192.0 * s2 * s - 72.0 * s), np.where(s2 >= 0.125, 12.0 * np.sqrt(2.0), 0.0))
+    return (3.0 * np.maximum(4.0, 24.0 * s2 - 4.0) + cubic) * (1.0 + 1e-12)
+
+
 def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
     """(E,) bool: entries that :func:`linear_node_test` could pass at ``tolerance`` (3,); False ones cannot.
 
-    A necessary condition at the cost of two distances per entry: of the test's bound, the residual and
-    sawtooth terms alone are ``|δ| κ K_c / r_min⁵`` (``K = ½ resid_moment + |g| saw``, per node; κ the
-    Hessian factor of :func:`_hessian_factor`, from δ and r_max), and the form factor's lower bound is at
-    most ``A |δ| / (π r_min³)`` (``h_min <= r_max``, ``N·u <= r_c``, and ``r_c >= r_min``: the members and
-    their centroid are in the node's bounding sphere), so passing needs ``r_min² >= κ π K_c / (tol_c A)``
-    in every channel (``π K_c / (tol_c A)`` per node, cached for the tolerance). The threshold is relaxed
-    by 1 % for its rounding: a False is certain, a True only means "run the test"."""
+    A necessary condition at the cost of two distances per entry. Of the test's bound, the residual and
+    sawtooth terms alone are at least ``|δ| (min(κ a_c / r_min⁵, κ3 b_c / r_min⁶) + κ s_c / r_min⁵)`` (``a =
+    ½ resid_moment``, ``b = resid_moment3 / 6``, ``s = |g| saw`` per node; κ, κ3 from δ and r_max,
+    :func:`_hessian_factor`, :func:`_third_factor`), and the form factor's lower bound is at most ``A |δ|
+    / (π r_min³)`` (``h_min <= r_max``, ``N·u <= r_c``, and ``r_c >= r_min``: the members and their
+    centroid are in the node's bounding sphere). So passing needs, in every channel, ``r_min² / κ >= π (a
+    + s) / (tol A)``, or both ``r_min³ / κ3 >= π b / (tol A)`` and ``r_min² / κ >= π s / (tol A)``
+    (the three thresholds per node and channel cached for the tolerance). They are relaxed by 1 % for
+    their rounding: a False is certain, a True only means "run the test"."""
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
     key = tol.tobytes()
     cached = getattr(fit, "_reach", None)
     if cached is None or cached[0] != key:
-        k = 0.5 * fit.resid_moment + fit.gnorm * fit.saw[:, None]                              # (N, 3)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = np.where(k > 0, k / tol[None, :], 0.0).max(axis=1)                             # inf: tol_c = 0
-            r2 = np.where(fit.ok & (fit.area > 0), np.pi * q / np.where(fit.area > 0, fit.area, 1.0), np.inf)
-        cached = (key, 0.99 * np.nan_to_num(r2, nan=np.inf))
+        saw = fit.gnorm * fit.saw[:, None]                                                     # (N, 3)
+        usable = fit.ok & (fit.area > 0)
+        area = np.where(fit.area > 0, fit.area, 1.0)[:, None]
+
+        def threshold(k):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                q = np.where(k > 0, k / tol[None, :], 0.0)                                     # inf: tol_c = 0
+                t = np.where(usable[:, None], np.pi * q / area, np.inf)
+            return 0.99 * np.nan_to_num(t, nan=np.inf)
+
+        cached = (key, np.concatenate([threshold(0.5 * fit.resid_moment + saw), threshold(fit.resid_moment3 / 6.0),
+                                       threshold(saw)], axis=1))                               # (N, 9)
         fit._reach = cached
     row = _test_rows(fit, h)[en, :_TEST_START[4]]        # sphere centre, radius, centroid, normal
     ctr, rad, cen, nrm_v = (row[:, _TEST_COLUMNS[name]] for name in _TEST_FIELDS[:4])
@@ -1038,8 +1092,12 @@ def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
     rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
     rmin = rs - rad
     delta = np.abs(np.einsum("ij,ij->i", nrm_v, cen - pts))
+    t = cached[1][en]
     # divided rather than multiplied: a finite threshold near the float maximum must not overflow
-    return (rmin > 0) & (rmin * rmin / _hessian_factor(delta, rs + rad) >= cached[1][en])
+    r2k = (rmin * rmin / _hessian_factor(delta, rs + rad))[:, None]
+    r3k = (rmin * rmin * rmin / _third_factor(delta, rs + rad))[:, None]
+    each = (r2k >= t[:, 0:3]) | ((r3k >= t[:, 3:6]) & (r2k >= t[:, 6:9]))
+    return (rmin > 0) & each.all(axis=1)
 
 
 def _quadrature_bound(half, lmax, gnorm, area, delta, rmin, rmax):
@@ -1066,9 +1124,9 @@ def _quadrature_bound(half, lmax, gnorm, area, delta, rmin, rmax):
 def linear_node_irradiance(fit: NodeFits, point, node, points, normals):
     """The proxies of (receiver, node) pairs ``point, node (P,)``: ``π ∫ L_lin k dA`` over the node's
     rectangles by a :data:`QUAD_NODES`² Gauss–Legendre rule each, minus the sawtooth term ``π g·(Σ J_i)
-    ∇k(c)`` (see :func:`linear_node_test`): ``(P, 3)``, and the rounding allowance ``(P, 3)`` (the rule's
-    own error is in :func:`_quadrature_bound`). Pairs go :data:`PROXY_BATCH` at a time (the rule's
-    (pairs, n, n) arrays stay in cache)."""
+    ∇k(c)``, plus the residual's term ``π ½ ∇²k(c) : E2`` (see :func:`linear_node_test`): ``(P, 3)``, and
+    the rounding allowance ``(P, 3)`` (the rule's own error is in :func:`_quadrature_bound`). Pairs go
+    :data:`PROXY_BATCH` at a time (the rule's (pairs, n, n) arrays stay in cache)."""
     h = np.zeros((len(point), 3))
     allowance = np.zeros((len(point), 3))
     for s in range(0, len(point), PROXY_BATCH):
@@ -1091,7 +1149,7 @@ def _proxy_batch(fit: NodeFits, point, node, points, normals):
     rect_rows, node_rows = _rect_terms(fit)
     p = points[point]
     nn = normals[point]
-    nd = node_rows[node]                                                    # (P, 24)
+    nd = node_rows[node]                                                    # (P, 42)
     cu = nd[:, 0:3] - p
     delta = np.abs(np.einsum("ij,ij->i", nd[:, 3:6], cu))
     # every pair's rectangles (a pair's are consecutive)
@@ -1127,16 +1185,34 @@ def _proxy_batch(fit: NodeFits, point, node, points, normals):
     pgrad = delta[:, None] * (nn / (r2 * r2)[:, None] - 4.0 * (nu / (r2 * r2 * r2))[:, None] * cu)
     saw = np.einsum("pk,pkc->pc", np.einsum("pkl,pl->pk", nd[:, 6:15].reshape(-1, 3, 3), pgrad),
                     nd[:, 15:24].reshape(-1, 3, 3))
-    return h - saw, 1e-12 * (mag + np.abs(saw))
+    # the residual's term at c: C2 = π ½ ∇²k(c) : E2, π ∇²k = |δ| (−4 (N uᵀ + u Nᵀ) / r⁶ − 4 (N·u) I / r⁶
+    # + 24 (N·u) u uᵀ / r⁸), E2 symmetric and in the plane: u and N by their components along e1, e2
+    fr = nd[:, 24:30]
+    ua = fr[:, 0] * cu[:, 0] + fr[:, 1] * cu[:, 1] + fr[:, 2] * cu[:, 2]
+    ub = fr[:, 3] * cu[:, 0] + fr[:, 4] * cu[:, 1] + fr[:, 5] * cu[:, 2]
+    na = fr[:, 0] * nn[:, 0] + fr[:, 1] * nn[:, 1] + fr[:, 2] * nn[:, 2]
+    nb = fr[:, 3] * nn[:, 0] + fr[:, 4] * nn[:, 1] + fr[:, 5] * nn[:, 2]
+    # C2 = α E11 + β E12 + γ E22 per channel
+    r6 = r2 * r2 * r2
+    a6, a8 = delta / r6, 12.0 * delta * nu / (r6 * r2)
+    diag = -2.0 * nu * a6
+    coef = np.stack([diag - 4.0 * a6 * na * ua + a8 * ua * ua, -4.0 * a6 * (na * ub + nb * ua) + 2.0 * a8 * ua * ub,
+                     diag - 4.0 * a6 * nb * ub + a8 * ub * ub], axis=1)                              # (P, 3)
+    c2 = np.einsum("pk,pkc->pc", coef, nd[:, 30:39].reshape(-1, 3, 3))
+    # its rounding: each of its terms is at most 36 |δ| |E2| / r_c⁵, |E2| <= resid_moment, and E2 is a sum
+    # of up to 10^6 terms (a relative 1e-9 covers both many times over)
+    c2_round = 1e-9 * 36.0 * (delta / (r2 * r2 * np.sqrt(r2)))[:, None] * nd[:, 39:42]
+    return h - saw + c2, 1e-12 * (mag + np.abs(saw)) + c2_round
 
 def _rect_terms(fit: NodeFits):
     """Per rectangle and per node of ``fit`` what :func:`linear_node_irradiance` reads, one row each (one
-    gather per pair and rectangle; cached on ``fit``): ``(rect_rows (R, 24), node_rows (N, 24))``.
+    gather per pair and rectangle; cached on ``fit``): ``(rect_rows (R, 24), node_rows (N, 42))``.
 
     A rectangle's row: corner 0 (3), its sides ``s1 = corner 1 − corner 0``, ``s2 = corner 3 − corner 0``
     (6), their squared lengths (2), its area (1), ``coef`` (9: rows the affine radiance ``L_lin`` at corner
     0 and its steps along s1 and s2, per channel) and the rows' absolute values summed (3, the rounding
-    allowance's weight). A node's: centroid (3), normal (3), ``jsum`` (9) and ``grad`` (9)."""
+    allowance's weight). A node's (42): centroid (3), normal (3), ``jsum`` (9), ``grad`` (9), ``frame`` (6),
+    ``eps2`` (9: E11, E12, E22 of the channels) and ``resid_moment`` (3)."""
     cached = getattr(fit, "_rect_cache", None)
     if cached is not None and cached[0] is fit.rect:
         return cached[1]
@@ -1150,7 +1226,9 @@ def _rect_terms(fit: NodeFits):
     area = np.linalg.norm(np.cross(s1, s2), axis=1)
     rect_rows = np.column_stack([fit.rect[:, 0], s1, s2, len2, area, coef.reshape(-1, 9), np.abs(coef).sum(axis=1)])
     n = len(fit.rect_ptr) - 1
-    node_rows = np.column_stack([fit.centre, fit.normal, fit.jsum.reshape(n, 9), fit.grad.reshape(n, 9)])
+    node_rows = np.column_stack([fit.centre, fit.normal, fit.jsum.reshape(n, 9), fit.grad.reshape(n, 9),
+                                 fit.frame.reshape(n, 6), fit.eps2.transpose(0, 2, 1).reshape(n, 9),
+                                 fit.resid_moment])
     out = (rect_rows, node_rows)
     fit._rect_cache = (fit.rect, out)
     return out
