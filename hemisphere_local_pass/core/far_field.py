@@ -781,7 +781,7 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
                    z3.copy(), z3.copy(), z3.copy(),
                    np.zeros((n_nodes, 3, 3)), z3.copy(), z3.copy(), np.zeros(n_nodes), np.zeros((n_nodes, 3, 3)),
                    np.zeros(n_nodes), np.zeros(n_nodes), z3.copy(), z3.copy(), z3.copy(), z3.copy())
-    out.eps2 = z3.copy()[:, :, None].repeat(3, axis=2)
+    out.eps2 = np.zeros((n_nodes, 3, 3))
     out.frame = np.zeros((n_nodes, 2, 3))
     out.resid_moment3 = z3.copy()
     if not len(mem_tree):
@@ -815,8 +815,9 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
         starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
         # the rectangle test: extent of the members' vertices along e1, e2 against their total area
         rel = scene.poly_vertices[mem] - ref[v][:, None, :]
-        u1 = np.einsum("ikj,ij->ik", rel, e1[v])
-        u2 = np.einsum("ikj,ij->ik", rel, e2[v])
+        e1v, e2v = e1[v], e2[v]                                          # each member's node frame
+        u1 = np.einsum("ikj,ij->ik", rel, e1v)
+        u2 = np.einsum("ikj,ij->ik", rel, e2v)
         off = np.abs(np.einsum("ikj,ij->ik", rel, nrm[v])).max(axis=1)       # coplanar with the frame
         lo1, hi1 = np.minimum.reduceat(u1.min(axis=1), starts), np.maximum.reduceat(u1.max(axis=1), starts)
         lo2, hi2 = np.minimum.reduceat(u2.min(axis=1), starts), np.maximum.reduceat(u2.max(axis=1), starts)
@@ -832,7 +833,7 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
         # members' centroid c (then Σ A_i ε_i = 0 and Σ A_i ε_i (c_i − c) = 0, ε_i = L_i − L_lin(c_i))
         ap = area_p[mem]
         d = cen_p[mem] - ref[v]
-        dq = np.stack([np.einsum("ij,ij->i", d, e1[v]), np.einsum("ij,ij->i", d, e2[v])], axis=1)   # (P, 2)
+        dq = np.stack([np.einsum("ij,ij->i", d, e1v), np.einsum("ij,ij->i", d, e2v)], axis=1)       # (P, 2)
         cq = np.add.reduceat(ap[:, None] * dq, starts) / np.where(A > 0, A, 1.0)[:, None]
         dc = dq - cq[b]
         L = rad[mem]
@@ -856,7 +857,6 @@ def node_fits(scene, occ, h, eligible) -> NodeFits:
         inertia = np.add.reduceat(moment_i, starts)
         res_moment = np.add.reduceat(np.abs(eps) * moment_i[:, None], starts)
         # the residual's second moment about c in the frame, ∫_i (x − c)(x − c)ᵀ = J_i + A_i dc dcᵀ
-        e1v, e2v = e1[v], e2[v]
         sj = sec_p[mem]
         m_i = np.stack([np.einsum("pi,pij,pj->p", e1v, sj, e1v) + ap * dc[:, 0] ** 2,
                         np.einsum("pi,pij,pj->p", e1v, sj, e2v) + ap * dc[:, 0] * dc[:, 1],
@@ -1182,7 +1182,8 @@ def _proxy_batch(fit: NodeFits, point, node, points, normals):
     # π ∇k(c) = |δ| (N / r⁴ − 4 (N·u) u / r⁶)
     r2 = np.einsum("ij,ij->i", cu, cu)
     nu = np.einsum("ij,ij->i", nn, cu)
-    pgrad = delta[:, None] * (nn / (r2 * r2)[:, None] - 4.0 * (nu / (r2 * r2 * r2))[:, None] * cu)
+    r6 = r2 * r2 * r2
+    pgrad = delta[:, None] * (nn / (r2 * r2)[:, None] - 4.0 * (nu / r6)[:, None] * cu)
     saw = np.einsum("pk,pkc->pc", np.einsum("pkl,pl->pk", nd[:, 6:15].reshape(-1, 3, 3), pgrad),
                     nd[:, 15:24].reshape(-1, 3, 3))
     # the residual's term at c: C2 = π ½ ∇²k(c) : E2, π ∇²k = |δ| (−4 (N uᵀ + u Nᵀ) / r⁶ − 4 (N·u) I / r⁶
@@ -1193,7 +1194,6 @@ def _proxy_batch(fit: NodeFits, point, node, points, normals):
     na = fr[:, 0] * nn[:, 0] + fr[:, 1] * nn[:, 1] + fr[:, 2] * nn[:, 2]
     nb = fr[:, 3] * nn[:, 0] + fr[:, 4] * nn[:, 1] + fr[:, 5] * nn[:, 2]
     # C2 = α E11 + β E12 + γ E22 per channel
-    r6 = r2 * r2 * r2
     a6, a8 = delta / r6, 12.0 * delta * nu / (r6 * r2)
     diag = -2.0 * nu * a6
     coef = np.stack([diag - 4.0 * a6 * na * ua + a8 * ua * ua, -4.0 * a6 * (na * ub + nb * ua) + 2.0 * a8 * ua * ub,

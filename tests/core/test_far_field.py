@@ -243,6 +243,17 @@ _FIELDS = {
 }
 
 
+def _member_sums(scene, occ, h, ff, ep, en):
+    """(E, 3) the exact ``π Σ_i L_i F_i`` over the members of node ``en`` seen from receiver ``ep``, from
+    the exact form factors ``ff (m, n)``."""
+    exact = np.zeros((len(ep), 3))
+    for k, (p, v) in enumerate(zip(ep, en)):
+        tiles = h.perm[h.first_tile[v]:h.last_tile[v]]
+        mem = np.concatenate([occ.tile_members[occ.tile_ptr[t]:occ.tile_ptr[t + 1]] for t in tiles])
+        exact[k] = np.pi * (ff[p, mem][:, None] * scene.poly_radiance[mem]).sum(axis=0)
+    return exact
+
+
 @pytest.mark.parametrize("field", sorted(_FIELDS))
 def test_linear_proxy_bound_holds_node_by_node(field):
     """Every (receiver, node) pair's proxy against the exact sum over the node's members (form factors of
@@ -275,11 +286,7 @@ def test_linear_proxy_bound_holds_node_by_node(field):
     ep, en, bound = ep[keep], en[keep], bound[keep]
     assert len(ep) > 500
     proxy, rnd = linear_node_irradiance(fit, ep, en, pts, nrm)
-    exact = np.zeros_like(proxy)
-    for k, (p, v) in enumerate(zip(ep, en)):
-        tiles = h.perm[h.first_tile[v]:h.last_tile[v]]
-        mem = np.concatenate([occ.tile_members[occ.tile_ptr[t]:occ.tile_ptr[t + 1]] for t in tiles])
-        exact[k] = np.pi * (ff[p, mem][:, None] * scene.poly_radiance[mem]).sum(axis=0)
+    exact = _member_sums(scene, occ, h, ff, ep, en)
     err = np.abs(proxy - exact)
     allow = bound + rnd + 1e-13 * np.abs(exact)                            # exact's own rounding
     assert (err <= allow).all(), (err / allow).max()
@@ -549,11 +556,7 @@ def test_residual_term_makes_the_proxy_closer():
         without = linear_node_irradiance(fit, ep, en, pts, nrm)[0]
         fit.eps2[:] = saved
         fit._rect_cache = None
-        exact = np.zeros_like(with_term)
-        for k, (p, v) in enumerate(zip(ep, en)):
-            tiles = h.perm[h.first_tile[v]:h.last_tile[v]]
-            mem = np.concatenate([occ.tile_members[occ.tile_ptr[t]:occ.tile_ptr[t + 1]] for t in tiles])
-            exact[k] = np.pi * (ff[p, mem][:, None] * scene.poly_radiance[mem]).sum(axis=0)
+        exact = _member_sums(scene, occ, h, ff, ep, en)
         e1, e0 = np.abs(with_term - exact).max(axis=1), np.abs(without - exact).max(axis=1)
         real = e0 > 1e-11 * np.abs(exact).max()
         assert real.sum() > 50
