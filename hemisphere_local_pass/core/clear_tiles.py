@@ -54,7 +54,8 @@ class TileEdges:
         plane_normal: (T, 3) unit normal of each tile's plane; plane_point: (T, 3) a vertex on it;
             plane_tilt, plane_noise: (T,) how well that plane is known (the members' largest
             :func:`.scene.plane_uncertainty`).
-        a_xyz, b_xyz: (3, E) the edges' end points as component rows (for contiguous gathers).
+        a_xyz, b_xyz: (3, E) the edges' end points as component rows (for contiguous gathers);
+            w_cols: (3, E) ``weight`` likewise (or None).
     """
 
     vertices: np.ndarray
@@ -74,10 +75,12 @@ class TileEdges:
     plane_noise: np.ndarray
     a_xyz: np.ndarray | None = None
     b_xyz: np.ndarray | None = None
+    w_cols: np.ndarray | None = None
 
     def __post_init__(self):
         self.a_xyz = np.ascontiguousarray(self.vertices[self.edge_a].T)
         self.b_xyz = np.ascontiguousarray(self.vertices[self.edge_b].T)
+        self.w_cols = None if self.weight is None else np.ascontiguousarray(self.weight.T)
 
 
 def tile_edges(scene, occ) -> TileEdges:
@@ -246,7 +249,7 @@ def clear_irradiance(te: TileEdges, pairs: ClearPairs, points, normals, double_s
     pairs = ClearPairs(pairs.point[lit], pairs.tile[lit], pairs.side[lit], pairs.pair[lit])   # the rest emit nothing
     # one channel at a time (contiguous gathers; numpy's reduceat adds each segment in order, so the
     # sums are bitwise those of the (E, 3) reduction along axis 0, ~3x faster)
-    w_cols = np.ascontiguousarray(te.weight.T) if len(pairs.point) else None
+    w_cols = te.w_cols
     for sub in _batches(te, pairs):
         b, e, t = _edge_terms(te, sub, points, normals)
         n_edges = np.diff(te.edge_ptr)[sub.tile]

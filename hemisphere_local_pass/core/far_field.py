@@ -301,16 +301,34 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None, c
     if not len(sel):
         return ok, side
     ep, en, lin = ep[sel], en[sel], lin[sel]
-    geo = np.ones(len(en), dtype=bool)
-    corners = h.corners[en] - points[ep][:, None, :]
-    height = np.matmul(corners, normals[ep][:, :, None])[..., 0].min(axis=1)
-    rel = h.centers[en] - points[ep]
-    dist = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+    pts = np.take(points, ep, axis=0)
+    nr = np.take(normals, ep, axis=0)
+    px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
+    nx, ny, nz = nr[:, 0], nr[:, 1], nr[:, 2]
+    # the box's lowest corner above P's horizon and its largest coordinate, corner by corner along the
+    # entries (components, not (E, 8, 3) rows: see .rowops)
+    ct = np.take(_corner_columns(h), en, axis=1)                             # (24, E)
+    height = big = None
+    for j in range(8):
+        cx, cy, cz = ct[3 * j] - px, ct[3 * j + 1] - py, ct[3 * j + 2] - pz
+        hj = cx * nx + cy * ny + cz * nz
+        mj = np.maximum(np.maximum(np.abs(cx), np.abs(cy)), np.abs(cz))
+        if height is None:
+            height, big = hj, mj
+        else:
+            np.minimum(height, hj, out=height)
+            np.maximum(big, mj, out=big)
+    cen = np.take(h.centers, en, axis=0)
+    rx, ry, rz = cen[:, 0] - px, cen[:, 1] - py, cen[:, 2] - pz
+    dist = np.sqrt(rx * rx + ry * ry + rz * rz)
     r = h.radii[en]
     scale = dist + r
-    geo &= height > PLANE_EPS * (scale + r) + 1e-15 * np.abs(corners).max(axis=(1, 2))
-    d = np.einsum("ij,ij->i", ne.normal[en], ne.point[en] - points[ep])
-    plane_tol = ((PLANE_EPS + ne.tilt[en]) * scale + ne.noise[en] + COORD_EPS * np.abs(points[ep]).max(axis=1))
+    geo = height > PLANE_EPS * (scale + r) + 1e-15 * big
+    nv = np.take(ne.normal, en, axis=0)
+    nq = np.take(ne.point, en, axis=0)
+    d = nv[:, 0] * (nq[:, 0] - px) + nv[:, 1] * (nq[:, 1] - py) + nv[:, 2] * (nq[:, 2] - pz)
+    far = np.maximum(np.maximum(np.abs(px), np.abs(py)), np.abs(pz))
+    plane_tol = (PLANE_EPS + ne.tilt[en]) * scale + ne.noise[en] + COORD_EPS * far
     spread = ne.dn[en] * dist + ne.d0[en]
     geo &= np.abs(d) - spread > NODE_SIDE_FACTOR * (SIDE_MARGIN * scale + 4.0 * plane_tol)
     ok_s = geo & ne.usable[en]
@@ -324,6 +342,16 @@ def clear_node_test(ne: NodeEdges, h, points, normals, ep, en, tolerance=None, c
     ok[sel] = ok_s
     side[sel] = np.sign(d)
     return ok, side
+
+
+
+def _corner_columns(h) -> np.ndarray:
+    """(24, N): the hierarchy's box corners, corner j's x, y, z in rows 3j .. 3j + 2 (cached on ``h``)."""
+    cached = getattr(h, "_corner_columns", None)
+    if cached is None or cached[0] is not h.corners:
+        cached = (h.corners, np.ascontiguousarray(h.corners.reshape(len(h.corners), 24).T))
+        h._corner_columns = cached
+    return cached[1]
 
 
 class ProxyCredit:
@@ -530,10 +558,12 @@ def _tile_sums(te, point, tile, side, points, normals, m):
     for sub in _batches(te, pairs):
         _, e, t = _edge_terms(te, sub, points, normals)
         n_edges = np.diff(te.edge_ptr)[sub.tile]
-        per_pair = np.add.reduceat(t[:, None] * te.weight[e], np.cumsum(n_edges) - n_edges, axis=0)   # (P', 3)
+        starts = np.cumsum(n_edges) - n_edges
         for c in range(3):
-            out[:, c] += np.bincount(sub.point, weights=sub.side * per_pair[:, c], minlength=m)
-            mag[:, c] += np.bincount(sub.point, weights=np.abs(per_pair[:, c]), minlength=m)
+            # one channel at a time, as clear_irradiance: contiguous gathers, the same per-pair sums
+            per_pair = np.add.reduceat(t * np.take(te.w_cols[c], e), starts)                     # (P',)
+            out[:, c] += np.bincount(sub.point, weights=sub.side * per_pair, minlength=m)
+            mag[:, c] += np.bincount(sub.point, weights=np.abs(per_pair), minlength=m)
     return out, mag
 
 
@@ -957,7 +987,7 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
 
         |error| <= |δ| (min(κ/2 resid_moment (1 / r_min⁵ + 1 / r_c⁵), κ3/6 resid_moment3 / r_min⁶)
                         + κ |g| saw / r_min⁵ + defect0 / r_c³ + 3 defect1 / r_c⁴ + mismatch / r_min³)
-                 + the rule's error (:func:`_quadrature_bound`)
+                 + the rule's error (:func:`_quadrature_factor`)
 
     (``r_c = |c − P|``). The proxy is taken when this is at most the tolerance times a lower bound of the
     node's form factor ``F_v``: the larger of ``A |δ| h_min / (π r_max⁴)`` (``h_min`` the members' lowest
@@ -967,23 +997,29 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     disjoint parts of its hemisphere, ``Σ F_v <= 1``, so their bounds sum to at most the tolerance.
     """
     tol = np.broadcast_to(np.asarray(tolerance, dtype=np.float64), (3,))
-    # every receiver-independent term of an entry in one gathered row (one random access per entry)
-    row = _test_rows(fit, h)[en]
-    ctr, rad, cen, nrm_v, rmom, gn, saw, d0, d1, mism, lmax, area, inertia, half, ok, rmom3 = \
-        (row[:, _TEST_COLUMNS[name]] for name in _TEST_FIELDS)
-    ok = ok > 0
-    pts = points[ep]
-    nr = normals[ep]
-    rel = ctr - pts
-    rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+    # every receiver-independent term of the entries, one contiguous row per field (structure of arrays:
+    # each product below runs along the entries, none broadcasts a column against (E, 3))
+    row = np.take(_test_columns(fit, h), en, axis=1)                         # (36, E)
+
+    def col(name, j=0):
+        return row[_TEST_START[_TEST_FIELDS.index(name)] + j]
+
+    ok = col("ok") > 0
+    pts = np.take(points, ep, axis=0)
+    nr = np.take(normals, ep, axis=0)
+    px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
+    nx, ny, nz = nr[:, 0], nr[:, 1], nr[:, 2]
+    rx, ry, rz = col("centers", 0) - px, col("centers", 1) - py, col("centers", 2) - pz
+    rs = np.sqrt(rx * rx + ry * ry + rz * rz)
+    rad = col("radii")
     rmin = rs - rad
     rmax = rs + rad
-    cu = cen - pts
-    rc = np.sqrt(np.einsum("ij,ij->i", cu, cu))
-    delta = np.abs(np.einsum("ij,ij->i", nrm_v, cu))
+    ux, uy, uz = col("centre", 0) - px, col("centre", 1) - py, col("centre", 2) - pz
+    rc = np.sqrt(ux * ux + uy * uy + uz * uz)
+    delta = np.abs(col("normal", 0) * ux + col("normal", 1) * uy + col("normal", 2) * uz)
     # h_min, a lower bound of the members' heights above P's horizon: the bounding sphere's lowest point,
     # or, where that is not above the horizon, the box's lowest corner (both contain every member)
-    hmin = np.einsum("ij,ij->i", rel, nr) - rad
+    hmin = rx * nx + ry * ny + rz * nz - rad
     low = np.flatnonzero(hmin <= 0)
     if len(low):
         hmin[low] = np.matmul(h.corners[en[low]] - pts[low][:, None, :], nr[low][:, :, None])[..., 0].min(axis=1)
@@ -991,56 +1027,78 @@ def linear_node_test(fit: NodeFits, h, points, normals, ep, en, tolerance, retur
     geo = ok.copy()
     rmin = np.where(ok, rmin, 1.0)
     rc = np.where(ok, rc, 1.0)
-    r5 = rmin**5
-    kappa = _hessian_factor(delta, rmax)
+    i_r = 1.0 / rmin
+    i_c = 1.0 / rc
+    i_r3 = i_r * i_r * i_r
+    i_r5 = i_r3 * i_r * i_r
+    i_c3 = i_c * i_c * i_c
+    kappa, kappa3 = _kernel_factors(delta, rmax)
     # the residual's term: second order (with |C2| at c), or third order once the node is small enough
-    second = (0.5 * kappa * (1.0 / r5 + 1.0 / rc**5))[:, None] * rmom
-    third = (_third_factor(delta, rmax) / (6.0 * r5 * rmin))[:, None] * rmom3
-    bound = delta[:, None] * (np.minimum(second, third) + gn * (kappa * saw / r5)[:, None]
-                              + d0 / (rc**3)[:, None] + 3.0 * d1 / (rc**4)[:, None]
-                              + mism / (rmin**3)[:, None]) * (1.0 + SAFETY)
-    bound += _quadrature_bound(half, lmax, gn, area, delta, rmin, rmax)
+    second = 0.5 * kappa * (i_r5 + i_c3 * i_c * i_c)
+    third = kappa3 / 6.0 * i_r5 * i_r
+    saw = kappa * i_r5 * col("saw")
+    quad, reach = _quadrature_factor(col("half_side"), col("area"), delta, rmin, rmax)
     # a lower bound of F_v: the members' lowest height and farthest point, or k at the centroid less the
     # Hessian's remainder (the first-order term integrates to zero about the centroid)
+    area = col("area")
     f_box = area * delta * np.maximum(hmin, 0.0) / (np.pi * rmax**4)
-    nu = np.einsum("ij,ij->i", nr, cu)
-    f_mid = delta * (area * nu / rc**4 - 0.5 * kappa * inertia / r5) / np.pi
+    nu = nx * ux + ny * uy + nz * uz
+    f_mid = delta * (area * nu * (i_c3 * i_c) - 0.5 * kappa * col("inertia") * i_r5) / np.pi
     floor = np.maximum(f_box, f_mid * (1.0 - 1e-12))
-    allowed = tol[None, :] * floor[:, None]
-    ok &= (bound <= allowed * (1.0 - SAFETY)).all(axis=1)
+    bound = np.empty((len(en), 3))
+    for c in range(3):
+        gn = col("gnorm", c)
+        b = np.minimum(second * col("resid_moment", c), third * col("resid_moment3", c))
+        b += gn * saw
+        b += col("defect0", c) * i_c3
+        b += 3.0 * col("defect1", c) * (i_c3 * i_c)
+        b += col("mismatch", c) * i_r3
+        b *= delta
+        b *= 1.0 + SAFETY
+        b += (col("lmax", c) + reach * gn) * quad
+        bound[:, c] = b
+        ok &= b <= tol[c] * floor * (1.0 - SAFETY)
     if return_floor:
         return ok, np.where(geo[:, None], bound, np.inf), np.where(geo, np.maximum(floor, 0.0), 0.0)
     return ok, np.where(geo[:, None], bound, np.inf)
 
 
-#: what :func:`linear_node_test` reads per node, in :func:`_test_rows`'s column order, and the widths
+#: what :func:`linear_node_test` reads per node, in :func:`_test_columns`'s row order, and the widths
 _TEST_FIELDS = ("centers", "radii", "centre", "normal", "resid_moment", "gnorm", "saw", "defect0", "defect1",
                 "mismatch", "lmax", "area", "inertia", "half_side", "ok", "resid_moment3")
 _TEST_WIDTHS = (3, 1, 3, 3, 3, 3, 1, 3, 3, 3, 3, 1, 1, 1, 1, 3)
 _TEST_START = np.concatenate([[0], np.cumsum(_TEST_WIDTHS)])
-#: each field's columns: a slice (3 wide) or an index (1 wide: the gathered value is then (E,))
-_TEST_COLUMNS = {f: (slice(a, a + w) if w > 1 else a) for f, a, w in zip(_TEST_FIELDS, _TEST_START, _TEST_WIDTHS)}
 
 
-def _test_rows(fit: NodeFits, h) -> np.ndarray:
-    """(N, 36) per node the :data:`_TEST_FIELDS` (``centers``, ``radii`` the hierarchy's bounding spheres,
-    the rest ``fit``'s, ``ok`` as 1.0 / 0.0) side by side, cached on ``fit``: :func:`linear_node_test` and
-    :func:`linear_may_fit` gather one row per entry instead of a dozen arrays."""
+def _test_columns(fit: NodeFits, h) -> np.ndarray:
+    """(36, N) per node the :data:`_TEST_FIELDS` (``centers``, ``radii`` the hierarchy's bounding spheres,
+    the rest ``fit``'s, ``ok`` as 1.0 / 0.0), one row per component, cached on ``fit``:
+    :func:`linear_node_test` and :func:`linear_may_fit` gather them in one ``np.take`` along the nodes, and
+    every field's gathered values are then contiguous."""
     cached = getattr(fit, "_test_cache", None)
     if cached is not None and cached[0] is h and cached[1] is fit.ok:
         return cached[2]
     rows = np.column_stack([getattr(h if f in ("centers", "radii") else fit, f).astype(np.float64)
                             for f in _TEST_FIELDS])
-    fit._test_cache = (h, fit.ok, rows)
-    return rows
+    cols = np.ascontiguousarray(rows.T)
+    fit._test_cache = (h, fit.ok, cols)
+    return cols
+
+
+def _kernel_factors(delta, rmax):
+    """``(κ, κ3)`` (E,) each: :func:`_hessian_factor` and :func:`_third_factor` from one ``s²``."""
+    s2 = np.clip(1.0 - (delta / rmax) ** 2, 0.0, 1.0)
+    s = np.sqrt(s2)
+    q = np.maximum(4.0, 24.0 * s2 - 4.0)
+    cubic = np.maximum(np.abs(192.0 * s2 * s - 72.0 * s), np.where(s2 >= 0.125, 12.0 * np.sqrt(2.0), 0.0))
+    return (8.0 * s + q) * (1.0 + 1e-12), (3.0 * q + cubic) * (1.0 + 1e-12)
 
 
 def _hessian_factor(delta, rmax):
     """(E,) ``κ = 8 s + max(4, 24 s² − 4)``, ``s² = 1 − (δ / r_max)²``: ``|u|⁵`` times a bound on the
     in-plane Hessian of ``(N·u)|u|^-4`` over a node's bounding sphere (see :func:`linear_node_test`); 28
     where the plane is seen edge on, 4 head on. Rounded up by a relative 1e-12."""
-    s2 = np.clip(1.0 - (delta / rmax) ** 2, 0.0, 1.0)
-    return (8.0 * np.sqrt(s2) + np.maximum(4.0, 24.0 * s2 - 4.0)) * (1.0 + 1e-12)
+    return _kernel_factors(delta, rmax)[0]
 
 
 def _third_factor(delta, rmax):
@@ -1050,10 +1108,7 @@ def _third_factor(delta, rmax):
     with ``g = |u|^-4``, ``|u|⁶ D²_v g = 24 t² − 4`` and ``|u|⁷ D³_v g = 72 t − 192 t³``; ``|N·v|, |N·û| <= 1``,
     and v in the plane has ``|t| <= s``. The cubic's largest magnitude on [0, s] is at s or at its
     turning point ``1/√8`` (``12√2``). 29 head on, at most 180 at grazing. Rounded up by a relative 1e-12."""
-    s2 = np.clip(1.0 - (delta / rmax) ** 2, 0.0, 1.0)
-    s = np.sqrt(s2)
-    cubic = np.maximum(np.abs(192.0 * s2 * s - 72.0 * s), np.where(s2 >= 0.125, 12.0 * np.sqrt(2.0), 0.0))
-    return (3.0 * np.maximum(4.0, 24.0 * s2 - 4.0) + cubic) * (1.0 + 1e-12)
+    return _kernel_factors(delta, rmax)[1]
 
 
 def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
@@ -1082,28 +1137,32 @@ def linear_may_fit(fit: NodeFits, h, points, ep, en, tolerance) -> np.ndarray:
                 t = np.where(usable[:, None], np.pi * q / area, np.inf)
             return 0.99 * np.nan_to_num(t, nan=np.inf)
 
-        cached = (key, np.concatenate([threshold(0.5 * fit.resid_moment + saw), threshold(fit.resid_moment3 / 6.0),
-                                       threshold(saw)], axis=1))                               # (N, 9)
+        rows = np.concatenate([threshold(0.5 * fit.resid_moment + saw), threshold(fit.resid_moment3 / 6.0),
+                               threshold(saw)], axis=1)                                        # (N, 9)
+        cached = (key, np.ascontiguousarray(rows.T))                                           # (9, N)
         fit._reach = cached
-    row = _test_rows(fit, h)[en, :_TEST_START[4]]        # sphere centre, radius, centroid, normal
-    ctr, rad, cen, nrm_v = (row[:, _TEST_COLUMNS[name]] for name in _TEST_FIELDS[:4])
-    pts = points[ep]
-    rel = ctr - pts
-    rs = np.sqrt(np.einsum("ij,ij->i", rel, rel))
-    rmin = rs - rad
-    delta = np.abs(np.einsum("ij,ij->i", nrm_v, cen - pts))
-    t = cached[1][en]
+    row = np.take(_test_columns(fit, h)[:_TEST_START[4]], en, axis=1)    # sphere centre, radius, centroid, normal
+    pts = np.take(points, ep, axis=0)
+    px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
+    rx, ry, rz = row[0] - px, row[1] - py, row[2] - pz
+    rs = np.sqrt(rx * rx + ry * ry + rz * rz)
+    rmin = rs - row[3]
+    delta = np.abs(row[7] * (row[4] - px) + row[8] * (row[5] - py) + row[9] * (row[6] - pz))
+    kappa, kappa3 = _kernel_factors(delta, rs + row[3])
+    t = np.take(cached[1], en, axis=1)
     # divided rather than multiplied: a finite threshold near the float maximum must not overflow
-    r2k = (rmin * rmin / _hessian_factor(delta, rs + rad))[:, None]
-    r3k = (rmin * rmin * rmin / _third_factor(delta, rs + rad))[:, None]
-    each = (r2k >= t[:, 0:3]) | ((r3k >= t[:, 3:6]) & (r2k >= t[:, 6:9]))
-    return (rmin > 0) & each.all(axis=1)
+    r2k = rmin * rmin / kappa
+    r3k = rmin * rmin * rmin / kappa3
+    ok = rmin > 0
+    for c in range(3):
+        ok &= (r2k >= t[c]) | ((r3k >= t[3 + c]) & (r2k >= t[6 + c]))
+    return ok
 
 
-def _quadrature_bound(half, lmax, gnorm, area, delta, rmin, rmax):
-    """(E, 3) bound on the error of the :data:`QUAD_NODES`² Gauss–Legendre rule of
-    :func:`linear_node_irradiance` on the entries' rectangles, times π (per entry its node's ``half_side,
-    lmax (E, 3), gnorm (E, 3), area`` from :class:`NodeFits`).
+def _quadrature_factor(half, area, delta, rmin, rmax):
+    """``(q, y2)`` (E,) each: the :data:`QUAD_NODES`² Gauss–Legendre rule of :func:`linear_node_irradiance`
+    errs on an entry's rectangles by at most ``(lmax_c + y2 |g_c|) q`` per channel, times π included (per
+    entry its node's ``half_side``, ``area`` from :class:`NodeFits`; ``lmax``, ``|g|`` per channel).
 
     The integrand ``f = L_lin k`` is analytic where ``u·u ≠ 0``. Continue one coordinate into the
     complex plane by at most ``y = r_min / 4``: real parts stay within y of the rectangle (``|Re u| >=
@@ -1115,17 +1174,18 @@ def _quadrature_bound(half, lmax, gnorm, area, delta, rmin, rmax):
     (one term per direction, each side <= the largest, ``h``)."""
     y = 0.25 * rmin
     q = np.minimum(y / np.maximum(half, 1e-300), 1e100)                  # (no rectangles: not taken)
-    rho = q + np.sqrt(1.0 + q * q)
-    m = (lmax + 2.0 * y[:, None] * gnorm) * (delta * (rmax + 2.0 * y) / (0.25 * np.pi * rmin**4))[:, None]
+    rho2 = q + np.sqrt(1.0 + q * q)
+    rho2 *= rho2
+    m = delta * (rmax + 2.0 * y) / (0.25 * np.pi * rmin**4)
     area = area * (1.0 + 2 * RECT_FILL)
-    return np.pi * (64.0 / 15.0) * m * (area * rho ** (-2.0 * QUAD_NODES) / (rho * rho - 1.0))[:, None]
+    return np.pi * (64.0 / 15.0) * m * (area * rho2 ** (-QUAD_NODES) / (rho2 - 1.0)), 2.0 * y
 
 
 def linear_node_irradiance(fit: NodeFits, point, node, points, normals):
     """The proxies of (receiver, node) pairs ``point, node (P,)``: ``π ∫ L_lin k dA`` over the node's
     rectangles by a :data:`QUAD_NODES`² Gauss–Legendre rule each, minus the sawtooth term ``π g·(Σ J_i)
     ∇k(c)``, plus the residual's term ``π ½ ∇²k(c) : E2`` (see :func:`linear_node_test`): ``(P, 3)``, and
-    the rounding allowance ``(P, 3)`` (the rule's own error is in :func:`_quadrature_bound`). Pairs go
+    the rounding allowance ``(P, 3)`` (the rule's own error is in :func:`_quadrature_factor`). Pairs go
     :data:`PROXY_BATCH` at a time (the rule's (pairs, n, n) arrays stay in cache)."""
     h = np.zeros((len(point), 3))
     allowance = np.zeros((len(point), 3))
@@ -1140,69 +1200,101 @@ PROXY_BATCH = 4096
 _QX, _QW = np.polynomial.legendre.leggauss(QUAD_NODES)
 _QA = 0.5 * (_QX + 1.0)                                                     # the rule's nodes on [0, 1]
 _QW2 = 0.25 * np.outer(_QW, _QW).ravel()                                    # its weights (sum to 1), a-major
-# the weighted moments Σ w, Σ w a, Σ w b of the rule on the unit square, (n², 3)
-_QMOM = np.stack([_QW2, _QW2 * np.repeat(_QA, QUAD_NODES), _QW2 * np.tile(_QA, QUAD_NODES)], axis=1)
 
 
 def _proxy_batch(fit: NodeFits, point, node, points, normals):
-    """:func:`linear_node_irradiance` for one batch of pairs."""
+    """:func:`linear_node_irradiance` for one batch of pairs.
+
+    Component arrays throughout (structure of arrays): the rule's n² nodes are a loop over (P,) arrays,
+    not (P, n, n) arrays broadcast against per-pair columns (numpy's slow buffered path)."""
     rect_rows, node_rows = _rect_terms(fit)
-    p = points[point]
-    nn = normals[point]
-    nd = node_rows[node]                                                    # (P, 42)
-    cu = nd[:, 0:3] - p
-    delta = np.abs(np.einsum("ij,ij->i", nd[:, 3:6], cu))
+    p = np.take(points, point, axis=0)
+    nn = np.take(normals, point, axis=0)
+    nd = np.take(node_rows, node, axis=0)                                   # (P, 42)
+    cux, cuy, cuz = nd[:, 0] - p[:, 0], nd[:, 1] - p[:, 1], nd[:, 2] - p[:, 2]
+    nx, ny, nz = nn[:, 0], nn[:, 1], nn[:, 2]
+    delta = np.abs(nd[:, 3] * cux + nd[:, 4] * cuy + nd[:, 5] * cuz)
     # every pair's rectangles (a pair's are consecutive)
     k, rid = expand(node, fit.rect_ptr, np.arange(len(fit.rect)))
-    rr = rect_rows[rid]                                                     # (R, 24)
-    r0 = rr[:, 0:3] - p[k]
-    sd = rr[:, 3:9].reshape(-1, 2, 3)                                       # (R, 2, 3)
-    nk = nn[k]
+    one = len(k) == len(node)                                               # one rectangle each: k is the identity
+    rr = np.take(rect_rows, rid, axis=0)                                    # (R, 24)
+    if one:
+        px, py, pz, kx, ky, kz, dk = p[:, 0], p[:, 1], p[:, 2], nx, ny, nz, delta
+    else:
+        px, py, pz = (np.take(p[:, i], k) for i in range(3))
+        kx, ky, kz = (np.take(nn[:, i], k) for i in range(3))
+        dk = np.take(delta, k)
+    r0x, r0y, r0z = rr[:, 0] - px, rr[:, 1] - py, rr[:, 2] - pz
+    s1x, s1y, s1z, s2x, s2y, s2z = (rr[:, i] for i in range(3, 9))
     # over a rectangle u = r0 + a s1 + b s2 (s1 ⊥ s2, a, b in [0, 1]) N·u is affine and |u|² separable
     # in (a, b): both on the rule's n × n grid from per-side terms
-    n0 = np.einsum("ri,ri->r", r0, nk)
-    n12 = np.einsum("rki,ri->rk", sd, nk)
-    c12 = 2.0 * np.einsum("rki,ri->rk", sd, r0)
-    l2 = rr[:, 9:11]
-    ua = (c12[:, :1] + l2[:, :1] * _QA) * _QA + np.einsum("ri,ri->r", r0, r0)[:, None]
-    ub = (c12[:, 1:] + l2[:, 1:] * _QA) * _QA
-    uu = ua[:, :, None] + ub[:, None, :]                                    # (R, n, n) |u|²
-    num = (n12[:, :1] * _QA + n0[:, None])[:, :, None] + (n12[:, 1:] * _QA)[:, None, :]   # N·u
-    uu *= uu
-    num /= uu                                                               # π k / |δ| (>= 0)
-    mom = num.reshape(len(rid), -1) @ _QMOM                                 # (R, 3): Σ w k, Σ w k a, Σ w k b
+    n0 = r0x * kx + r0y * ky + r0z * kz
+    n1 = s1x * kx + s1y * ky + s1z * kz
+    n2 = s2x * kx + s2y * ky + s2z * kz
+    c1 = 2.0 * (s1x * r0x + s1y * r0y + s1z * r0z)
+    c2 = 2.0 * (s2x * r0x + s2y * r0y + s2z * r0z)
+    rr0 = r0x * r0x + r0y * r0y + r0z * r0z
+    l1, l2 = rr[:, 9], rr[:, 10]
+    ua = [(c1 + l1 * a) * a + rr0 for a in _QA]
+    ub = [(c2 + l2 * b) * b for b in _QA]
+    na = [n0 + n1 * a for a in _QA]
+    nb = [n2 * b for b in _QA]
+    # the weighted moments Σ w k, Σ w k a, Σ w k b of π k / |δ| (>= 0) on the grid
+    m0, m1, m2 = np.zeros(len(rid)), np.zeros(len(rid)), np.zeros(len(rid))
+    for i in range(QUAD_NODES):
+        for j in range(QUAD_NODES):
+            uu = ua[i] + ub[j]
+            uu *= uu
+            kij = na[i] + nb[j]
+            kij /= uu
+            kij *= _QW2[i * QUAD_NODES + j]
+            m0 += kij
+            m1 += _QA[i] * kij
+            m2 += _QA[j] * kij
     # L_lin = coef_0 + a coef_1 + b coef_2 per channel
-    scale = rr[:, 11] * delta[k]
-    cf = rr[:, 12:21].reshape(-1, 3, 3)                                     # (R, 3 terms, 3 channels)
-    per = scale[:, None] * np.einsum("rt,rtc->rc", mom, cf)
-    mag = (scale * mom[:, 0])[:, None] * rr[:, 21:24]
-    first = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
-    h = np.add.reduceat(per, first, axis=0)
-    mag = np.add.reduceat(mag, first, axis=0)
+    scale = rr[:, 11] * dk
+    m0 *= scale
+    m1 *= scale
+    m2 *= scale
+    h_r = [m0 * rr[:, 12 + c] + m1 * rr[:, 15 + c] + m2 * rr[:, 18 + c] for c in range(3)]
+    mag = [m0 * rr[:, 21 + c] for c in range(3)]
+    if not one:
+        first = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+        h_r = [np.add.reduceat(x, first) for x in h_r]
+        mag = [np.add.reduceat(x, first) for x in mag]
     # π ∇k(c) = |δ| (N / r⁴ − 4 (N·u) u / r⁶)
-    r2 = np.einsum("ij,ij->i", cu, cu)
-    nu = np.einsum("ij,ij->i", nn, cu)
-    r6 = r2 * r2 * r2
-    pgrad = delta[:, None] * (nn / (r2 * r2)[:, None] - 4.0 * (nu / r6)[:, None] * cu)
-    saw = np.einsum("pk,pkc->pc", np.einsum("pkl,pl->pk", nd[:, 6:15].reshape(-1, 3, 3), pgrad),
-                    nd[:, 15:24].reshape(-1, 3, 3))
+    r2 = cux * cux + cuy * cuy + cuz * cuz
+    nu = nx * cux + ny * cuy + nz * cuz
+    r4 = r2 * r2
+    r6 = r4 * r2
+    a4, b6 = delta / r4, 4.0 * delta * nu / r6
+    pg = (a4 * nx - b6 * cux, a4 * ny - b6 * cuy, a4 * nz - b6 * cuz)
+    # the sawtooth term g·(Σ J) π∇k(c): v = (Σ J) π∇k(c), then v · g per channel
+    v = [nd[:, 6 + 3 * r] * pg[0] + nd[:, 7 + 3 * r] * pg[1] + nd[:, 8 + 3 * r] * pg[2] for r in range(3)]
+    saw = [v[0] * nd[:, 15 + c] + v[1] * nd[:, 18 + c] + v[2] * nd[:, 21 + c] for c in range(3)]
     # the residual's term at c: C2 = π ½ ∇²k(c) : E2, π ∇²k = |δ| (−4 (N uᵀ + u Nᵀ) / r⁶ − 4 (N·u) I / r⁶
     # + 24 (N·u) u uᵀ / r⁸), E2 symmetric and in the plane: u and N by their components along e1, e2
-    fr = nd[:, 24:30]
-    ua = fr[:, 0] * cu[:, 0] + fr[:, 1] * cu[:, 1] + fr[:, 2] * cu[:, 2]
-    ub = fr[:, 3] * cu[:, 0] + fr[:, 4] * cu[:, 1] + fr[:, 5] * cu[:, 2]
-    na = fr[:, 0] * nn[:, 0] + fr[:, 1] * nn[:, 1] + fr[:, 2] * nn[:, 2]
-    nb = fr[:, 3] * nn[:, 0] + fr[:, 4] * nn[:, 1] + fr[:, 5] * nn[:, 2]
+    ua_ = nd[:, 24] * cux + nd[:, 25] * cuy + nd[:, 26] * cuz
+    ub_ = nd[:, 27] * cux + nd[:, 28] * cuy + nd[:, 29] * cuz
+    na_ = nd[:, 24] * nx + nd[:, 25] * ny + nd[:, 26] * nz
+    nb_ = nd[:, 27] * nx + nd[:, 28] * ny + nd[:, 29] * nz
     # C2 = α E11 + β E12 + γ E22 per channel
     a6, a8 = delta / r6, 12.0 * delta * nu / (r6 * r2)
     diag = -2.0 * nu * a6
-    coef = np.stack([diag - 4.0 * a6 * na * ua + a8 * ua * ua, -4.0 * a6 * (na * ub + nb * ua) + 2.0 * a8 * ua * ub,
-                     diag - 4.0 * a6 * nb * ub + a8 * ub * ub], axis=1)                              # (P, 3)
-    c2 = np.einsum("pk,pkc->pc", coef, nd[:, 30:39].reshape(-1, 3, 3))
+    alpha = diag - 4.0 * a6 * na_ * ua_ + a8 * ua_ * ua_
+    beta = -4.0 * a6 * (na_ * ub_ + nb_ * ua_) + 2.0 * a8 * ua_ * ub_
+    gamma = diag - 4.0 * a6 * nb_ * ub_ + a8 * ub_ * ub_
     # its rounding: each of its terms is at most 36 |δ| |E2| / r_c⁵, |E2| <= resid_moment, and E2 is a sum
     # of up to 10^6 terms (a relative 1e-9 covers both many times over)
-    c2_round = 1e-9 * 36.0 * (delta / (r2 * r2 * np.sqrt(r2)))[:, None] * nd[:, 39:42]
-    return h - saw + c2, 1e-12 * (mag + np.abs(saw)) + c2_round
+    c2_round = 1e-9 * 36.0 * delta / (r4 * np.sqrt(r2))
+    h = np.empty((len(point), 3))
+    allowance = np.empty((len(point), 3))
+    for c in range(3):
+        c2 = alpha * nd[:, 30 + c] + beta * nd[:, 33 + c] + gamma * nd[:, 36 + c]
+        h[:, c] = h_r[c] - saw[c] + c2
+        allowance[:, c] = 1e-12 * (mag[c] + np.abs(saw[c])) + c2_round * nd[:, 39 + c]
+    return h, allowance
+
 
 def _rect_terms(fit: NodeFits):
     """Per rectangle and per node of ``fit`` what :func:`linear_node_irradiance` reads, one row each (one
