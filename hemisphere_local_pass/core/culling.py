@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .depth_pairs import Bodies, DepthPairs, ball_pairs, beyond_lists, pair_flags, solid_columns
+from .depth_pairs import Bodies, DepthPairs, ball_pairs, beyond_lists, pair_flags, side_flags, solid_columns
 from .inner_solids import inner_solids
 from .rowops import components, pack_bits, unique_rows
 from .scene import Scene, plane_uncertainty
@@ -635,6 +635,19 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     step("tiles")
     ci = np.concatenate(cis) if cis else np.zeros(0, dtype=np.int64)
     co = np.concatenate(cos) if cos else np.zeros(0, dtype=np.int64)
+    cop_ptr, co, first_source = _coplanar_lists(scene, verts, counts, normals, members, ci, co)
+    step("solids")
+    return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
+                     front_pos, front_neg, *tiles, cop_ptr, co, first_source, occ_tilt, occ_noise,
+                     sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
+                     np.concatenate([radii, sol.radii]), pairs, hull_cores=hull_cores)
+
+
+def _coplanar_lists(scene, verts, counts, normals, members, ci, co):
+    """The coplanar overlaps of :class:`Occluders` from candidate pairs ``(polygon ci, merged face co)`` in
+    row-major order, and each face's lowest source index: ``(coplanar_ptr (n+1,), coplanar_occ,
+    first_source (n_o,))`` (``members (n,)``: every polygon's merged face)."""
+    n, n_o = scene.n_polygons, len(counts)
     # only pairs that can overlap: coplanar neighbours that merely touch (the cells of a face that did
     # not merge, e.g. a float32-rounded face whose boundary is no longer straight) never hide each other
     keep = ~_separated(scene.poly_vertices[ci], scene.poly_counts[ci], scene.poly_normals[ci],
@@ -645,11 +658,7 @@ def build_occluders(scene: Scene, *, solids: bool = True, step=None) -> Occluder
     first_source = np.full(n_o, np.iinfo(np.int64).max)
     if n:
         np.minimum.at(first_source, members, scene.poly_source)
-    step("solids")
-    return Occluders(verts, counts, normals, centers, radii, members, beyond_pos, beyond_neg, occ_pos, occ_neg,
-                     front_pos, front_neg, *tiles, np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise,
-                     sol, reach_pos, reach_neg, np.concatenate([centers, sol.centers]),
-                     np.concatenate([radii, sol.radii]), pairs, hull_cores=hull_cores)
+    return np.cumsum(cop_ptr), co, first_source
 
 
 #: the depth relations per pair (:mod:`.depth_pairs`) instead of tables from this many merged faces on
@@ -692,17 +701,10 @@ def _occluders_per_pair(scene, step, verts, counts, normals, centers, radii, mem
     ci, co = ci[ok], co[ok]
     order = np.lexsort((co, ci))                           # the tables' row-major order
     ci, co = ci[order], co[order]
-    keep = ~_separated(scene.poly_vertices[ci], scene.poly_counts[ci], scene.poly_normals[ci],
-                       verts[co], counts[co], normals[co])
-    ci, co = ci[keep], co[keep]
-    cop_ptr = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(cop_ptr, ci + 1, 1)
-    first_source = np.full(n_o, np.iinfo(np.int64).max)
-    if n:
-        np.minimum.at(first_source, mapped, scene.poly_source)
+    cop_ptr, co, first_source = _coplanar_lists(scene, verts, counts, normals, mapped, ci, co)
     step("solids")
     return Occluders(verts, counts, normals, centers, radii, mapped, None, None, None, None, None, None, *tiles,
-                     np.cumsum(cop_ptr), co, first_source, occ_tilt, occ_noise, sol, None, None,
+                     cop_ptr, co, first_source, occ_tilt, occ_noise, sol, None, None,
                      np.concatenate([centers, sol.centers]), np.concatenate([radii, sol.radii]), None, depth)
 
 
@@ -870,8 +872,8 @@ def _separated(a_verts, a_counts, a_normals, b_verts, b_counts, b_normals):
     return res
 
 
-#: relative rounding of the plane distances in :func:`_beyond` (differences of coordinates and a unit
-#: normal, each a few ulp)
+#: relative rounding of the plane distances (differences of coordinates and a unit normal, each a few ulp):
+#: :func:`_edge_separates`'; :func:`_beyond` decides with :func:`.depth_pairs.side_flags`, of the same value
 _ROUNDING = 64 * np.finfo(np.float64).eps
 
 
@@ -912,23 +914,6 @@ def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):
             d = rel[0] * on[0] + rel[1] * on[1] + rel[2] * on[2]
             rs.append(np.maximum(np.maximum(np.abs(rel[0]), np.abs(rel[1])), np.abs(rel[2])))
             ds.append(np.where(valid[s:s + step, j, None], d, 0.0))
-        eps_body = coef * np.maximum.reduce(rs) + noise
-        p, ng, pb, nb, unsure = (np.zeros(ds[0].shape, dtype=bool) for _ in range(5))
-        for d, reach in zip(ds, rs):
-            eps = coef * reach + noise
-            ad = np.abs(d)
-            # a vertex off the plane by more than rounding but within the decision tolerance may be on
-            # either side: as a filter, it counts for both. Rounding here is that of d itself (a few ulp
-            # of |rel|): the relative tolerance 4 PLANE_EPS |rel| is far wider for a vertex far from the
-            # plane's reference vertex (a 1e6 quad seen against a 1e-6 triangle's plane: 3e-6 > the
-            # quad's true 1e-6 reach to the triangle's near side, which decides whether it can hide it)
-            unsure |= (ad > _ROUNDING * reach + noise) & (ad <= eps)
-            p |= d > eps
-            ng |= d < -eps
-            pb |= d > eps_body
-            nb |= d < -eps_body
-        pos[s:s + step] = p | unsure
-        neg[s:s + step] = ng | unsure
-        pos_body[s:s + step] = pb
-        neg_body[s:s + step] = nb
+        pos[s:s + step], neg[s:s + step], pos_body[s:s + step], neg_body[s:s + step] = side_flags(ds, rs, coef,
+                                                                                                  noise)
     return pos, neg, pos_body, neg_body

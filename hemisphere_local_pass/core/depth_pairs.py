@@ -28,10 +28,38 @@ import numpy as np
 from .tolerances import COORD_EPS, PLANE_EPS
 
 __all__ = ["Bodies", "BeyondLists", "DepthPairs", "ball_pairs", "beyond_lists", "face_tree", "pair_flags",
-           "solid_columns", "tree_above"]
+           "side_flags", "solid_columns", "tree_above"]
 
-#: relative rounding of the plane distances (as :data:`.culling._ROUNDING`)
+#: relative rounding of the plane distances (differences of coordinates and a unit normal, each a few ulp;
+#: :func:`side_flags` and :data:`.culling._ROUNDING`)
 _ROUNDING = 64 * np.finfo(np.float64).eps
+
+
+def side_flags(ds: list, rs: list, coef, noise):
+    """The side decisions of a body's vertices against a plane, shared by the tables
+    (:func:`.culling._beyond`) and the pairs (:func:`_beyond_pairs`), so that both decide bit for bit alike.
+
+    ``ds, rs``: per vertex slot, the signed distances from the plane and the largest |coordinate
+    difference| from its reference vertex (padding slots: distance 0), arrays of one shape; ``coef``, ``noise``
+    broadcast to it (``4 PLANE_EPS + tilt`` and both bodies' coordinate noise). Returns ``(pos, neg,
+    pos_body, neg_body)`` bool: a vertex beyond its own tolerance ``coef × reach + noise`` (one off the plane
+    by more than rounding but within it counts for both sides), and beyond the body's largest tolerance."""
+    eps_body = coef * np.maximum.reduce(rs) + noise
+    p, ng, pb, nb, unsure = (np.zeros(np.shape(ds[0]), dtype=bool) for _ in range(5))
+    for d, reach in zip(ds, rs):
+        eps = coef * reach + noise
+        ad = np.abs(d)
+        # a vertex off the plane by more than rounding but within the decision tolerance may be on
+        # either side: as a filter, it counts for both. Rounding here is that of d itself (a few ulp
+        # of |rel|): the relative tolerance 4 PLANE_EPS |rel| is far wider for a vertex far from the
+        # plane's reference vertex (a 1e6 quad seen against a 1e-6 triangle's plane: 3e-6 > the
+        # quad's true 1e-6 reach to the triangle's near side, which decides whether it can hide it)
+        unsure |= (ad > _ROUNDING * reach + noise) & (ad <= eps)
+        p |= d > eps
+        ng |= d < -eps
+        pb |= d > eps_body
+        nb |= d < -eps_body
+    return p | unsure, ng | unsure, pb, nb
 
 
 @dataclass
@@ -73,17 +101,7 @@ def _beyond_pairs(body: Bodies, b: np.ndarray, occ: Bodies, o: np.ndarray):
         d = rel[0] * on[:, 0] + rel[1] * on[:, 1] + rel[2] * on[:, 2]
         rs.append(np.maximum(np.maximum(np.abs(rel[0]), np.abs(rel[1])), np.abs(rel[2])))
         ds.append(np.where(valid[:, j], d, 0.0))
-    eps_body = coef * np.maximum.reduce(rs) + noise
-    p, ng, pb, nb, unsure = (np.zeros(len(b), dtype=bool) for _ in range(5))
-    for d, reach in zip(ds, rs):
-        eps = coef * reach + noise
-        ad = np.abs(d)
-        unsure |= (ad > _ROUNDING * reach + noise) & (ad <= eps)
-        p |= d > eps
-        ng |= d < -eps
-        pb |= d > eps_body
-        nb |= d < -eps_body
-    return p | unsure, ng | unsure, pb, nb
+    return side_flags(ds, rs, coef, noise)
 
 
 def pair_flags(body: Bodies, b: np.ndarray, occ: Bodies, o: np.ndarray, step: int = 1 << 18):
