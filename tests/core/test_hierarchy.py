@@ -226,6 +226,28 @@ def test_chunks_split_to_the_budget():
             assert np.array_equal(np.sort(split[2][0].point), np.sort(whole[2][0].point))
 
 
+def test_receiver_groups_bound_their_members():
+    """The candidate stage's groups partition the receivers; each holds at most the budget's members, or at
+    most GROUP_CAP times that with at most MIN_GROUP_POINTS receivers (a large scene's receivers are not run a
+    few at a time), or is one receiver; groups of a small scene are those of the plain budget."""
+    rng = np.random.default_rng(3)
+    for per in (rng.integers(0, 40, 500), rng.integers(0, 4000, 300), np.full(200, 10), np.array([10**6, 5, 5])):
+        cum = np.concatenate([[0], np.cumsum(per)])
+        limit = 2000
+        groups = chunk._receiver_groups(cum, 0, len(per), limit)
+        assert [g[0] for g in groups] == [0] + [g[1] for g in groups[:-1]] and groups[-1][1] == len(per)
+        for s, e in groups:
+            held = cum[e] - cum[s]
+            assert held <= limit or e - s == 1 or (e - s <= chunk.MIN_GROUP_POINTS and held <= chunk.GROUP_CAP * limit)
+    # 300 receivers of ~2,000 members each: groups of a few receivers with the plain budget, here tens
+    cum = np.concatenate([[0], np.cumsum(np.full(300, 2000))])
+    groups = chunk._receiver_groups(cum, 0, 300, 20000)
+    assert min(e - s for s, e in groups) >= 37 and max(cum[e] - cum[s] for s, e in groups) <= 4 * 20000
+    # receivers of few members: the plain budget decides (no group above it)
+    cum = np.concatenate([[0], np.cumsum(np.full(10000, 10))])
+    assert all(cum[e] - cum[s] <= 20000 for s, e in chunk._receiver_groups(cum, 0, 10000, 20000))
+
+
 def test_float32_rounded_faces_get_convex_cores(monkeypatch):
     """Rounded to float32, the cells of a rotated block's top have no straight outline and do not merge;
     they get a convex core (the hull of the interior cells, in the tiling's kernel) plus their ring of
