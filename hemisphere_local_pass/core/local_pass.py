@@ -3,7 +3,8 @@
 Receivers are processed in chunks of points; within a chunk everything is vectorised across points,
 polygons and fragments. A chunk holds ``budget // (n_polygons × vertex slots)`` points, at most
 ``MAX_CHUNK_POINTS``, so the candidates' coordinate arrays stay below ``budget × 3 × 8`` bytes (12 MB at
-the default 2**19) whatever the scene size, and the clear tiles' edge terms go in batches of
+the default 2**19; 4× that in a group of at most 64 receivers, :data:`.chunk.GROUP_CAP`) whatever the scene
+size, and the clear tiles' edge terms go in batches of
 ``clear_tiles.EDGE_BATCH``. Both defaults were measured (9,468 polygons: 2**18 → 2**19 saves 10–20 %;
 175 polygons: chunks of 384 points instead of 744 or 192 save 5–10 %; larger chunks lose cache locality, smaller
 ones pay numpy's per-call overhead more often).
