@@ -112,3 +112,24 @@ def timed(fn, *args, **kw):
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec. 709 luminance of ``(..., 3)`` linear RGB."""
     return rgb @ np.array([0.2126, 0.7152, 0.0722])
+
+
+#: how a written ``--out`` markdown file's hand-written part begins: a new run rewrites what comes before
+#: the line and keeps the rest (measurements and readings added by hand)
+KEEP_PREFIX = "<!-- hand-written below:"
+
+
+def keep_marker(script: str) -> str:
+    """The marker line a benchmark ``script`` writes (see :data:`KEEP_PREFIX`)."""
+    return f"{KEEP_PREFIX} kept when {script} --out rewrites this file -->"
+
+
+def with_kept_sections(text: str, path) -> str:
+    """``text`` followed by the hand-written part of the existing ``path`` (from its marker line on, any
+    benchmark's: :data:`KEEP_PREFIX`), if it has one; a file without the marker is replaced whole."""
+    path = Path(path)
+    if not path.exists():
+        return text
+    old = path.read_text()
+    at = old.find(KEEP_PREFIX)
+    return text if at < 0 else text + "\n" + old[at:]

@@ -48,7 +48,7 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
-from _common import ROOT, log, machine
+from _common import ROOT, keep_marker, log, machine, with_kept_sections
 
 from hemisphere_local_pass.core.raycast import build_bvh, cast_rays
 from hemisphere_local_pass.scenes import camera_rays, cornell_box
@@ -375,19 +375,9 @@ def main(argv=None):
         log(f"wrote {args.out}.md, .json, .png")
 
 
-#: a line in a written ``--out`` markdown file from which on the rest is hand-written: a new run rewrites
-#: what comes before it and keeps the rest (measurements and readings added by hand)
-KEEP_MARKER = "<!-- hand-written below: kept when bench_scaling.py --out rewrites this file -->"
-
-
-def with_kept_sections(text: str, path: Path) -> str:
-    """``text`` followed by the hand-written part of the existing ``path`` (from :data:`KEEP_MARKER` on),
-    if it has one; a file without the marker is replaced whole (as before the marker existed)."""
-    if not path.exists():
-        return text
-    old = path.read_text()
-    at = old.find(KEEP_MARKER)
-    return text if at < 0 else text + "\n" + old[at:]
+#: the line of a written ``--out`` markdown file from which on the rest is hand-written (see
+#: :func:`_common.with_kept_sections`)
+KEEP_MARKER = keep_marker("bench_scaling.py")
 
 
 def ratio_pair(core, subdivisions, args):

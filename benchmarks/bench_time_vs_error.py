@@ -16,7 +16,8 @@ timed apart, once per scene), exact evaluations, RMS and max error of the radian
 ``E + ρH/π`` against the exact image (luminance, relative to its mean: Cycles' metric in
 bench_cycles.py), the largest per-channel error of H relative to the mean H (the adaptive tolerance's
 own metric), and Cycles' bias (mean error). Writes ``docs/bench_time_vs_error.md``/``.json`` and
-``docs/bench_time_vs_error.png`` (log-log time against RMS and max error)::
+``docs/bench_time_vs_error.png`` (log-log time against RMS and max error); the markdown keeps what follows
+its hand-written marker line (``_common.KEEP_PREFIX``)::
 
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_time_vs_error.py [--scenes small,large,huge]
         [--size 256] [--spp 1,4,16,64,256,1024] [--rel 1e-2,1e-3,1e-4]
@@ -42,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import CACHE, ROOT, log, luminance, machine, solved_radiance  # noqa: E402
+from _common import CACHE, ROOT, log, luminance, machine, solved_radiance, with_kept_sections  # noqa: E402
 
 from hemisphere_local_pass.scenes import PAPER_SETTINGS, cornell_box  # noqa: E402
 
@@ -195,9 +196,9 @@ def main(argv=None):
 
 def write(report, out):
     md = ["# Time against error: Cycles, the exact image and the adaptive image (one run)\n",
-          f"Machine: {report['machine']}. The machine was shared with other engineers' jobs during the run "
-          "(2 cores, ~8 users): absolute seconds are inflated and noisy; rows of one scene were measured "
-          "minutes apart in the same run.\n",
+          f"Machine: {report['machine']}. Load average at the end of the run: {os.getloadavg()[0]:.1f} (1 min) "
+          f"on {os.cpu_count()} cores (above ~{os.cpu_count()}, other jobs shared the machine and the seconds are "
+          "inflated); rows of one scene were measured minutes apart in the same run.\n",
           f"Command: `{report['command']}`\n",
           "Errors: radiance image E + ρH/π against the exact image, luminance, relative to its mean (Cycles' "
           "metric); *H max* = largest per-channel |ΔH| over the mean H (the adaptive tolerance's metric). "
@@ -226,7 +227,7 @@ def write(report, out):
             if c1 is not None and ex is not None:
                 md.append(f"Exact image: {ex['seconds']:.1f} s, {c1 / ex['seconds']:.2f}× Cycles' time to 1 % RMS.")
         md.append("")
-    Path(out + ".md").write_text("\n".join(md) + "\n", encoding="utf-8")
+    Path(out + ".md").write_text(with_kept_sections("\n".join(md) + "\n", out + ".md"), encoding="utf-8")
     Path(out + ".json").write_text(json.dumps(report, indent=1), encoding="utf-8")
     try:
         plot(report, out + ".png")
