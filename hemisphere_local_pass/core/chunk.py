@@ -47,7 +47,7 @@ DEFAULT_BUDGET = 2**19
 #: ``budget / (K + 1)`` members, or up to :data:`GROUP_CAP` times that while a group has at most
 #: :data:`MIN_GROUP_POINTS` receivers: in a large scene each receiver brings thousands of members, and groups of
 #: a few receivers would pay the candidate stage's per-call overhead (hundreds of numpy calls) many times over
-#: (190,774 polygons: 16 receivers a group, 8 % of the call; smaller scenes are split as before)
+#: (190,774 polygons: 16 receivers a group; ~11 % of the call; smaller scenes are split as before)
 MIN_GROUP_POINTS = 64
 GROUP_CAP = 4
 

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .depth_pairs import Bodies, DepthPairs, ball_pairs, beyond_lists, pair_flags, side_flags, solid_columns
+# _ROUNDING: the plane distances' rounding, one value for _edge_separates and side_flags
+from .depth_pairs import _ROUNDING, Bodies, DepthPairs, ball_pairs, beyond_lists, pair_flags, side_flags, solid_columns
 from .inner_solids import inner_solids
 from .rowops import components, pack_bits, unique_rows
 from .scene import Scene, plane_uncertainty
@@ -870,11 +871,6 @@ def _separated(a_verts, a_counts, a_normals, b_verts, b_counts, b_normals):
         res[sl] = (_edge_separates(a_verts[sl], a_counts[sl], a_normals[sl], b_verts[sl], b_counts[sl])
                    | _edge_separates(b_verts[sl], b_counts[sl], b_normals[sl], a_verts[sl], a_counts[sl]))
     return res
-
-
-#: relative rounding of the plane distances (differences of coordinates and a unit normal, each a few ulp):
-#: :func:`_edge_separates`'; :func:`_beyond` decides with :func:`.depth_pairs.side_flags`, of the same value
-_ROUNDING = 64 * np.finfo(np.float64).eps
 
 
 def _beyond(body_verts, body_counts, occ_verts, occ_normals, occ_tilt):

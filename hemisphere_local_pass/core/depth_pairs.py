@@ -30,8 +30,8 @@ from .tolerances import COORD_EPS, PLANE_EPS
 __all__ = ["Bodies", "BeyondLists", "DepthPairs", "ball_pairs", "beyond_lists", "face_tree", "pair_flags",
            "side_flags", "solid_columns", "tree_above"]
 
-#: relative rounding of the plane distances (differences of coordinates and a unit normal, each a few ulp;
-#: :func:`side_flags` and :data:`.culling._ROUNDING`)
+#: relative rounding of the plane distances (differences of coordinates and a unit normal, each a few ulp):
+#: :func:`side_flags`, and :func:`.culling._edge_separates`, which imports it
 _ROUNDING = 64 * np.finfo(np.float64).eps
 
 
