@@ -48,6 +48,16 @@ on a quadtree of image cells:
    two kinks slipped). docs/adaptive.md: 54 % → 45 % of the pixels exact on the 256² Cornell box at
    1e-2 of the mean, 89 % → 81 % at 1e-3, the measured max errors unchanged.
 
+Order of work: the forced tests (step 2) need geometry only, so a round follows them down at once, to
+the cells that need a spot check (at whatever depth) and the cells of single pixels; then one core call
+evaluates every corner met and those cells' spot checks, and step 3 (with 4) decides. The rejected
+cells' children form the next round and skip the forced tests: a part of a uniform cell is uniform, and a
+child's hull with a light lies inside its parent's, and an occluder narrower than the child was narrower
+than the parent. The decisions, and so the image, are those of a depth-by-depth order (each cell's tests
+see its own geometry and its own exact samples only), with one core call per round instead of two per
+depth: on the 256² Cornell box of 9,468 polygons at 1e-3 (2 workers) the pass took 1.30× the time of one
+core call over the same pixels, now 1.08× (docs/adaptive.md, "Workers").
+
 Why those factors: for smooth H the bilinear interpolant's error falls with the square of the spacing,
 so the accepted interpolant (spacing halved) errs by about ``d / 4``; measured on the 256² Cornell box
 the ratio of the true largest error in a cell to ``d`` reached 0.9 inside surfaces and 1.8 next to
@@ -505,6 +515,11 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
     eps = 1e-9 * scale
 
     # --- the quadtree ------------------------------------------------------------------------------
+    # A cell's forced splits (surface, shadow) depend on geometry alone, so they are followed down at once,
+    # without any H; the cells that need their spot checks, at whatever depth, then go to the core in one
+    # call with every corner still missing. Each round is one core call (two per depth before): fewer,
+    # larger calls keep the workers busy (docs/adaptive.md, "Workers"). The decisions are those of the
+    # depth-by-depth order: a cell's tests see only its own geometry and its own exact samples.
     def nodes(size):
         v = np.unique(np.concatenate([np.arange(0, size, coarse), [size - 1]]))
         return (v[:-1], v[1:]) if len(v) > 1 else (v, v)
@@ -513,96 +528,118 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
     ay0, ay1 = nodes(h)
     X0, Y0 = np.meshgrid(ax0, ay0)
     X1, Y1 = np.meshgrid(ax1, ay1)
-    cells = [a.reshape(-1) for a in (X0, X1, Y0, Y1)]
+    # cells: [x0, x1, y0, y1, depth, clear]; ``clear``: the cell lies in one that passed both forced tests.
+    # Both tests are inherited: a part of a uniform cell is uniform, and a child's hull with a light lies in
+    # its parent's (an occluder that misses the parent's hull misses the child's) and a child is smaller, so
+    # no occluder narrower than the child was wider than the parent. The spot check's children skip them
+    pending = [a.reshape(-1) for a in (X0, X1, Y0, Y1)] + [np.zeros(X0.size, dtype=np.int64),
+                                                           np.zeros(X0.size, dtype=bool)]
     fills = []
-    while len(cells[0]):
-        x0, x1, y0, y1 = cells
-        evaluate(np.concatenate([y0, y0, y1, y1]), np.concatenate([x0, x1, x0, x1]))
-        small = (x1 - x0 <= 1) & (y1 - y0 <= 1)          # every pixel is a corner: exact
+    while len(pending[0]):
+        # 1. forced splits, down to cells that need a spot check (ready) or are all corners (small)
+        ready, frontier, corners = [], pending, []
+        while len(frontier[0]):
+            x0, x1, y0, y1, depth, clear = frontier
+            corners.append((x0, x1, y0, y1))
+            small = (x1 - x0 <= 1) & (y1 - y0 <= 1)          # every pixel is a corner: exact
+            ok = ~small & (clear | uniform(x0, x1, y0, y1))
+            forced = ~small & ~ok
+            stats.forced_surface += int(forced.sum())
+            if lights and (ok & ~clear).any():
+                i = np.flatnonzero(ok & ~clear)
+                quads = np.stack([p[y0[i], x0[i]], p[y0[i], x1[i]], p[y1[i], x1[i]], p[y1[i], x0[i]]], axis=1)
+                sh = _shadow_cells(scene, bvh, lights, quads, unit[y0[i], x0[i]], eps)
+                ok[i[sh]] = False
+                forced[i[sh]] = True
+                stats.forced_shadow += int(sh.sum())
+            ready.append([a[ok] for a in frontier])
+            s = np.flatnonzero(forced)
+            frontier = _children(x0, x1, y0, y1, depth, s, np.ones(len(s), bool), np.ones(len(s), bool), False)
+        x0, x1, y0, y1, depth, _ = (np.concatenate(a) for a in zip(*ready, strict=True))
         mx, my = (x0 + x1) // 2, (y0 + y1) // 2
-        split = np.zeros(len(x0), dtype=bool)
-        # the axes a split cell is halved along (both, unless its spot check says one suffices)
+        # 2. one core call: the corners of every cell met (a split cell's corners are its children's) and
+        #    the ready cells' spot checks: the four edge midpoints and the centre
+        cx = np.stack([mx, mx, x0, x1, mx], axis=1)                    # (c, 5) spot-check pixels
+        cy = np.stack([y0, y1, my, my, my], axis=1)
+        ca, cb, cc, cd = (np.concatenate(a) for a in zip(*corners, strict=True))
+        evaluate(np.concatenate([cc, cc, cd, cd, cy.reshape(-1)]), np.concatenate([ca, cb, ca, cb, cx.reshape(-1)]))
+        if not len(x0):
+            break
+        # 3. the spot checks
+        u = ((cx - x0[:, None]) / np.maximum(x1 - x0, 1)[:, None])[..., None]
+        v = ((cy - y0[:, None]) / np.maximum(y1 - y0, 1)[:, None])[..., None]
+        c00, c10 = H[y0, x0][:, None], H[y0, x1][:, None]
+        c01, c11 = H[y1, x0][:, None], H[y1, x1][:, None]
+        interp = (1 - v) * ((1 - u) * c00 + u * c10) + v * ((1 - u) * c01 + u * c11)
+        miss = np.abs(H[cy, cx] - interp).max(axis=2)                  # (c, 5)
+        d = miss.max(axis=1)
+        # next to a surface break (or the image border, behind which one may lie) H is not smooth:
+        # at a concave junction it goes like x log x (x the distance to the junction), the spot
+        # check's ratio to the interpolant's error is no longer 4 and its largest error is not at
+        # the checked pixels (measured up to 1.8 d at a wall's edge): stricter test, larger estimate
+        edge = _touches_break(tx, ty, x0, x1, y0, y1, w, h)
+        factor = np.where(edge, EDGE_FACTOR, INNER_FACTOR)
+        d = d * factor                                                 # the estimate
+        good = d <= tol
+        stats.accepted += int(good.sum())
+        stats.rejected += int((~good).sum())
         want_x = np.ones(len(x0), dtype=bool)
         want_y = np.ones(len(x0), dtype=bool)
-        ok = ~small & uniform(x0, x1, y0, y1)
-        split |= ~small & ~ok
-        stats.forced_surface += int((~small & ~ok).sum())
-        if lights and ok.any():
-            i = np.flatnonzero(ok)
-            quads = np.stack([p[y0[i], x0[i]], p[y0[i], x1[i]], p[y1[i], x1[i]], p[y1[i], x0[i]]], axis=1)
-            sh = _shadow_cells(scene, bvh, lights, quads, unit[y0[i], x0[i]], eps)
-            ok[i[sh]] = False
-            split[i[sh]] = True
-            stats.forced_shadow += int(sh.sum())
-        i = np.flatnonzero(ok)
-        if len(i):
-            cx = np.stack([mx[i], mx[i], x0[i], x1[i], mx[i]], axis=1)    # (c, 5) spot-check pixels
-            cy = np.stack([y0[i], y1[i], my[i], my[i], my[i]], axis=1)
-            evaluate(cy.reshape(-1), cx.reshape(-1))
-            u = ((cx - x0[i, None]) / np.maximum(x1 - x0, 1)[i, None])[..., None]
-            v = ((cy - y0[i, None]) / np.maximum(y1 - y0, 1)[i, None])[..., None]
-            c00, c10 = H[y0[i], x0[i]][:, None], H[y0[i], x1[i]][:, None]
-            c01, c11 = H[y1[i], x0[i]][:, None], H[y1[i], x1[i]][:, None]
-            interp = (1 - v) * ((1 - u) * c00 + u * c10) + v * ((1 - u) * c01 + u * c11)
-            miss = np.abs(H[cy, cx] - interp).max(axis=2)                 # (c, 5)
-            d = miss.max(axis=1)
-            # next to a surface break (or the image border, behind which one may lie) H is not smooth:
-            # at a concave junction it goes like x log x (x the distance to the junction), the spot
-            # check's ratio to the interpolant's error is no longer 4 and its largest error is not at
-            # the checked pixels (measured up to 1.8 d at a wall's edge): stricter test, larger estimate
-            edge = _touches_break(tx, ty, x0[i], x1[i], y0[i], y1[i], w, h)
-            factor = np.where(edge, EDGE_FACTOR, INNER_FACTOR)
-            d = d * factor                                           # the estimate
-            good = d <= tol
-            stats.accepted += int(good.sum())
-            stats.rejected += int((~good).sum())
-            split[i[~good]] = True
-            if anisotropic:
-                # interpolation along y (the left and right edge midpoints) within the tolerance while
-                # the rest misses: halve x alone (the children check y again at the same spacing); and
-                # the converse. A kink or a break's neighbourhood along a column or row is then not
-                # sampled densely along its own direction
-                bad = ~good
-                fine_y = factor * miss[:, 2:4].max(axis=1) <= tol
-                fine_x = factor * miss[:, 0:2].max(axis=1) <= tol
-                # at most MAX_ASPECT : 1 (a cell long along the passing axis tests it on few columns or
-                # rows; measured: unbounded aspect let a 3-pixel valley between two kinks slip, 1.55 x
-                # the tolerance on the 128² Cornell box at 1e-2)
-                sx, sy = (x1 - x0)[i], (y1 - y0)[i]
-                want_y[i[bad & fine_y & ~fine_x & (sy <= MAX_ASPECT * sx // 2)]] = False
-                want_x[i[bad & fine_x & ~fine_y & (sx <= MAX_ASPECT * sy // 2)]] = False
-            a = i[good]
-            if len(a):
-                fills.append((x0[a], mx[a], x1[a], y0[a], my[a], y1[a], d[good]))
-        # children: halve each wanted axis that still has an interior pixel (if none, every one that has)
-        s = np.flatnonzero(split)
-        wide, tall = x1[s] - x0[s] >= 2, y1[s] - y0[s] >= 2
-        cut_x, cut_y = want_x[s] & wide, want_y[s] & tall
-        none = ~cut_x & ~cut_y
-        cut_x |= none & wide
-        cut_y |= none & tall
-        kids = [[], [], [], []]
-        for xa, xb, ya, yb, need_x, need_y in ((x0, mx, y0, my, False, False), (mx, x1, y0, my, True, False),
-                                               (x0, mx, my, y1, False, True), (mx, x1, my, y1, True, True)):
-            m = (cut_x if need_x else True) & (cut_y if need_y else True) & np.ones(len(s), dtype=bool)
-            sel = s[m]
-            # along an axis that is not cut, the child spans the whole cell
-            cx0 = np.where(cut_x[m], xa[sel], x0[sel])
-            cx1 = np.where(cut_x[m], xb[sel], x1[sel])
-            cy0 = np.where(cut_y[m], ya[sel], y0[sel])
-            cy1 = np.where(cut_y[m], yb[sel], y1[sel])
-            for lst, arr in zip(kids, (cx0, cx1, cy0, cy1), strict=True):
-                lst.append(arr)
-        cells = [np.concatenate(k) for k in kids]
+        if anisotropic:
+            # interpolation along y (the left and right edge midpoints) within the tolerance while
+            # the rest misses: halve x alone (the children check y again at the same spacing); and
+            # the converse. A kink or a break's neighbourhood along a column or row is then not
+            # sampled densely along its own direction
+            bad = ~good
+            fine_y = factor * miss[:, 2:4].max(axis=1) <= tol
+            fine_x = factor * miss[:, 0:2].max(axis=1) <= tol
+            # at most MAX_ASPECT : 1 (a cell long along the passing axis tests it on few columns or
+            # rows; measured: unbounded aspect let a 3-pixel valley between two kinks slip, 1.55 x
+            # the tolerance on the 128² Cornell box at 1e-2)
+            sx, sy = x1 - x0, y1 - y0
+            want_y[bad & fine_y & ~fine_x & (sy <= MAX_ASPECT * sx // 2)] = False
+            want_x[bad & fine_x & ~fine_y & (sx <= MAX_ASPECT * sy // 2)] = False
+        if good.any():
+            fills.append((x0[good], mx[good], x1[good], y0[good], my[good], y1[good], d[good], depth[good]))
+        s = np.flatnonzero(~good)
+        pending = _children(x0, x1, y0, y1, depth, s, want_x[s], want_y[s], True)
 
     # --- interpolate the accepted cells over their four sub-cells ----------------------------------
-    for x0, mx, x1, y0, my, y1, est in fills:
-        for xa, xb, ya, yb in ((x0, mx, y0, my), (mx, x1, y0, my), (x0, mx, my, y1), (mx, x1, my, y1)):
-            _fill_bilinear(H, err, exact, xa, xb, ya, yb, est)
+    # shallower cells first: where a cell's edge borders finer cells, the finer interpolation is the one kept
+    if fills:
+        x0, mx, x1, y0, my, y1, est, depth = (np.concatenate(a) for a in zip(*fills, strict=True))
+        order = np.argsort(depth, kind="stable")
+        for dep in np.unique(depth):
+            k = order[depth[order] == dep]
+            for xa, xb, ya, yb in ((x0, mx, y0, my), (mx, x1, y0, my), (x0, mx, my, y1), (mx, x1, my, y1)):
+                _fill_bilinear(H, err, exact, xa[k], xb[k], ya[k], yb[k], est[k])
     err[exact | ~valid] = 0.0
     H[~valid] = 0.0
     stats.error_estimate = float(err.max()) if err.size else 0.0
     return H, stats
+
+
+def _children(x0, x1, y0, y1, depth, s, want_x, want_y, clear):
+    """The children of cells ``s`` (indices into the cell arrays), halved along each wanted axis that still
+    has an interior pixel (if none, along every one that has); along an axis not cut a child spans the whole
+    cell. Returns ``[x0, x1, y0, y1, depth, clear]`` of the children (``clear`` the bool given for all)."""
+    mx, my = (x0[s] + x1[s]) // 2, (y0[s] + y1[s]) // 2
+    wide, tall = x1[s] - x0[s] >= 2, y1[s] - y0[s] >= 2
+    cut_x, cut_y = want_x & wide, want_y & tall
+    none = ~cut_x & ~cut_y
+    cut_x |= none & wide
+    cut_y |= none & tall
+    kids = [[], [], [], [], []]
+    for xa, xb, ya, yb, need_x, need_y in ((x0[s], mx, y0[s], my, False, False), (mx, x1[s], y0[s], my, True, False),
+                                           (x0[s], mx, my, y1[s], False, True), (mx, x1[s], my, y1[s], True, True)):
+        m = (cut_x if need_x else True) & (cut_y if need_y else True) & np.ones(len(s), dtype=bool)
+        kids[0].append(np.where(cut_x[m], xa[m], x0[s][m]))
+        kids[1].append(np.where(cut_x[m], xb[m], x1[s][m]))
+        kids[2].append(np.where(cut_y[m], ya[m], y0[s][m]))
+        kids[3].append(np.where(cut_y[m], yb[m], y1[s][m]))
+        kids[4].append(depth[s][m] + 1)
+    out = [np.concatenate(k) for k in kids]
+    return out + [np.full(len(out[0]), clear, dtype=bool)]
 
 
 def _touches_break(tx, ty, x0, x1, y0, y1, w, h):

@@ -283,7 +283,7 @@ def test_all_missed():
 
 def test_workers_share_one_pool_and_give_the_same_bits(monkeypatch):
     """With 2 workers every core call of the pass runs on one pool (the kept pool of a PoolKeeper scope
-    here: started once, whatever the number of quadtree levels), and the image is bit for bit that of
+    here: started once, whatever the number of quadtree rounds), and the image is bit for bit that of
     one worker."""
     import hemisphere_local_pass.core.adaptive as ad
     from hemisphere_local_pass.core.parallel import PoolKeeper
@@ -304,7 +304,8 @@ def test_workers_share_one_pool_and_give_the_same_bits(monkeypatch):
         with keeper.scope():
             two, st2 = adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=2)
         assert keeper.started == 1 and keeper.pool.n_workers == 2
-        assert len(executors) > 4 and all(e is keeper.pool for e in executors)
+        # one core call per round of spot checks (the forced splits need none)
+        assert len(executors) >= 2 and all(e is keeper.pool for e in executors)
     finally:
         keeper.close()
     assert np.array_equal(one, two) and st1.exact_points == st2.exact_points
