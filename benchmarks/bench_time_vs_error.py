@@ -134,6 +134,8 @@ def main(argv=None):
                     "(default: those below 20,000 polygons; others use the cached reference)")
     ap.add_argument("--bpy", default=str(ROOT / ".venv" / "bpy-4.2" / "bin" / "python"), help="'' for no Cycles")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
+    ap.add_argument("--serial-exact", action=argparse.BooleanOptionalAction, default=True,
+                    help="also time the exact image on 1 worker where it is timed (the workers' speed-up)")
     ap.add_argument("--out", default=str(DOCS / "bench_time_vs_error"))
     args = ap.parse_args(argv)
     import bench_cycles
@@ -141,7 +143,7 @@ def main(argv=None):
     command = ("OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_time_vs_error.py "
                f"--scenes {args.scenes} --size {args.size} --rel {args.rel} --spp {args.spp}")
     rels = [float(r) for r in args.rel.split(",")]
-    report = {"machine": machine(), "command": command, "size": args.size, "scenes": []}
+    report = {"machine": machine(), "command": command, "size": args.size, "workers": args.workers, "scenes": []}
     for key in args.scenes.split(","):
         box, lum, scene, inputs, rho, emit, t_prep = prepare(key, args.size)
         log(f"[{key}] {box.n_polygons} polygons: preparation {t_prep:.1f} s")
@@ -155,6 +157,14 @@ def main(argv=None):
             log(f"[{key}] exact image: {sec:.1f} s, {st.exact_points} points")
             if not cache.exists():
                 np.savez(cache, H=exact_h, seconds=sec, command=command)
+            if args.serial_exact and args.workers > 1:
+                # the same image on one worker, right after: the speed-up of every core (issue 11: >= 1.8x on 2)
+                serial_h, st1, sec1 = run_adaptive(scene, inputs, 0.0, 1)
+                same = bool(np.array_equal(serial_h, exact_h))
+                entry["rows"].append({"method": "exact, 1 worker", "seconds": sec1, "exact_points": st1.exact_points,
+                                      "same_bits": same})
+                entry["workers_speedup"] = sec1 / sec
+                log(f"[{key}] exact image on 1 worker: {sec1:.1f} s ({sec1 / sec:.2f}x), same bits: {same}")
         elif cache.exists():
             z = np.load(cache)
             exact_h = z["H"]
@@ -226,6 +236,11 @@ def write(report, out):
             ex = next((r for r in e["rows"] if r["method"] == "exact"), None)
             if c1 is not None and ex is not None:
                 md.append(f"Exact image: {ex['seconds']:.1f} s, {c1 / ex['seconds']:.2f}× Cycles' time to 1 % RMS.")
+        one = next((r for r in e["rows"] if r["method"] == "exact, 1 worker"), None)
+        if one is not None and e.get("workers_speedup") is not None:
+            same = "the same" if one["same_bits"] else "NOT the same"
+            md.append(f"Exact image on {report.get('workers', '?')} workers: {e['workers_speedup']:.2f}× faster than "
+                      f"on 1 ({one['seconds']:.1f} s), {same} bits.")
         md.append("")
     Path(out + ".md").write_text(with_kept_sections("\n".join(md) + "\n", out + ".md"), encoding="utf-8")
     Path(out + ".json").write_text(json.dumps(report, indent=1), encoding="utf-8")
@@ -255,7 +270,7 @@ def plot(report, path):
             for r in ada:
                 ax.annotate(f"{r['rel']:g}", (r["seconds"], max(r["max"], 1e-12)), fontsize=8)
         for r in e["rows"]:
-            if r["method"].startswith("exact"):
+            if r["method"].startswith("exact") and "1 worker" not in r["method"]:
                 ax.axvline(r["seconds"], color="k", ls="--", label=f"exact ({r['seconds']:.0f} s)")
         ax.axhline(0.01, color="grey", lw=0.5)
         ax.set_title(f"{e['polygons']} polygons, {report.get('size', 256)}²")
