@@ -1,7 +1,7 @@
 """Does ``workers`` parallelise the adaptive pass? 1 against 2 workers, side by side in one process.
 
-``core.adaptive_irradiance`` makes two core calls per quadtree level (the new cells' corners, then the
-spot checks). Each configuration runs on the same cached camera-ray hits of a benchmark Cornell box
+``core.adaptive_irradiance`` makes several core calls (two per quadtree level until 2026-12-06, one per
+round of spot checks since). Each configuration runs on the same cached camera-ray hits of a benchmark Cornell box
 (``bench_time_vs_error.prepare``), in turn, ``--repeat`` times (the best time is kept; the machine is
 shared, so the load average is printed):
 

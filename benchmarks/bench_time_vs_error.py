@@ -133,6 +133,9 @@ def main(argv=None):
     ap.add_argument("--exact-time", default="", help="scenes whose exact image is timed in this run "
                     "(default: those below 20,000 polygons; others use the cached reference)")
     ap.add_argument("--bpy", default=str(ROOT / ".venv" / "bpy-4.2" / "bin" / "python"), help="'' for no Cycles")
+    ap.add_argument("--cycles-max-polygons", type=int, default=20000,
+                    help="no Cycles rows above this many polygons: building the bpy scene of one material per "
+                         "polygon took over 10 minutes at 187,588 polygons (2026-12-06)")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--serial-exact", action=argparse.BooleanOptionalAction, default=True,
                     help="also time the exact image on 1 worker where it is timed (the workers' speed-up)")
@@ -190,7 +193,9 @@ def main(argv=None):
                            h_max=float(np.abs(h - exact_h).max() / mean_h))
             entry["rows"].append(row)
             log(f"[{key}] adaptive {rel:g}: {sec:.1f} s, {st.exact_points} exact, {row}")
-        if args.bpy and rad_exact is not None and Path(args.bpy).exists():
+        if box.n_polygons > args.cycles_max_polygons:
+            entry["cycles_skipped"] = f"above --cycles-max-polygons {args.cycles_max_polygons}"
+        elif args.bpy and rad_exact is not None and Path(args.bpy).exists():
             rows, blender = cycles_rows(args.bpy, key, args.size, args.spp, rad_exact, args.max_seconds)
             if rows:
                 entry["blender"] = blender
@@ -225,6 +230,9 @@ def write(report, out):
             md.append(f"| {r['method']} | {r['seconds']:.1f} | {r.get('exact_points', '—')} | {exact} | "
                       f"{'0' if r['method'].startswith('exact') else f('max')} | {f('h_max')} | {f('estimate')} | "
                       f"{f('bias', '{:+.1e}')} |")
+        if e.get("cycles_skipped"):
+            md.append(f"\nNo Cycles rows: {e['cycles_skipped']} (bpy builds a material per polygon in time growing "
+                      "with the number of materials).")
         if e.get("cycles_1pct") is not None or "blender" in e:
             c1 = e.get("cycles_1pct")
             md.append(f"\nCycles (Blender {e.get('blender', '?')}, default light sampling, 2 threads) reaches 1 % RMS "

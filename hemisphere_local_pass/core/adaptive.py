@@ -429,7 +429,7 @@ def adaptive_irradiance(
     if (g >= scene.n_input).any():
         raise ValueError(f"polygons holds index {int(g.max())}, the scene has {scene.n_input} input polygons")
     # one pool of worker processes for the whole pass (the caller's kept pool in a PoolKeeper scope),
-    # started by the first core call: the quadtree makes two core calls per level, and a pool per call
+    # started by the first core call: the quadtree makes one core call per round of spot checks, and a pool per call
     # would start its processes and ship the scene to them every time (docs/adaptive.md, "Workers")
     kept = []
 
