@@ -120,10 +120,7 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
         out[s:e] = value
 
     run_chunks(chunk_fn, (scene, occ, budget), chunks, args_of, store, workers=workers, executor=executor,
-               progress=progress, cancel=cancel, key=scene,
-               # the exact results do not depend on the chunks (tested); the far field's bounds do (its rounding
-               # allowance and the node tests see the chunk's receivers), so its chunks stay the job's
-               divisible=chunk_fn is not _irradiance_far_chunk)
+               progress=progress, cancel=cancel, key=scene)
 
 
 def _form_factor_chunk(shared, p, n, u) -> np.ndarray:

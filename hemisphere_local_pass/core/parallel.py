@@ -54,8 +54,8 @@ import uuid
 import weakref
 from collections.abc import Callable, Sequence
 
-__all__ = ["Cancelled", "PoolKeeper", "WorkerDied", "WorkerPool", "balanced_chunks", "default_workers", "job_pool",
-           "run_chunks", "worker_python"]
+__all__ = ["Cancelled", "PoolKeeper", "WorkerDied", "WorkerPool", "default_workers", "job_pool", "run_chunks",
+           "worker_python"]
 
 #: shared objects (scenes) a worker keeps; older ones are dropped (bounded worker memory)
 SHARED_KEEP = 2
@@ -701,24 +701,6 @@ def _executor_width(executor) -> int:
     return 2 * max(1, int(n or default_workers()))
 
 
-def balanced_chunks(chunks: Sequence[tuple], parts: int) -> list:
-    """Consecutive ranges ``chunks`` ``[(s, e), ...]`` re-cut into a multiple of ``parts`` ranges of nearly
-    equal length (they differ by at most one point), none longer than the longest given.
-
-    A call's last chunk is usually short, and a call of fewer chunks than workers leaves workers idle: with
-    2 workers the adaptive pass's calls of 400 points (chunks of 384 + 16) ran on one core."""
-    chunks = list(chunks)
-    if not chunks or parts <= 1:
-        return chunks
-    start, end = chunks[0][0], chunks[-1][1]
-    m = end - start
-    count = min(m, -(-len(chunks) // parts) * parts)
-    if count <= 1:
-        return chunks
-    edges = [start + (i * m) // count for i in range(count + 1)]  # lengths floor(m/count) or one more
-    return list(zip(edges[:-1], edges[1:], strict=True))
-
-
 def run_chunks(
     fn: Callable,
     shared,
@@ -731,7 +713,6 @@ def run_chunks(
     progress: Callable[[int, int], None] | None = None,
     cancel: Callable[[], bool] | None = None,
     key=None,
-    divisible: bool = False,
 ) -> None:
     """Run ``store(s, e, fn(shared, *args_of(s, e)))`` for every chunk ``(s, e)`` of ``chunks``.
 
@@ -746,11 +727,6 @@ def run_chunks(
     returns True (or on KeyboardInterrupt) pending chunks are dropped, a :class:`WorkerPool` is killed
     (also a caller's: it cannot be used afterwards; its processes are reaped when the caller shuts it
     down, this call's own pool at once), and :class:`Cancelled` is raised.
-
-    ``divisible=True`` says that ``chunks`` are consecutive ranges of points whose results do not depend on
-    how the points are cut into chunks (the core's receivers): on workers they are then re-cut into nearly
-    equal chunks, none larger than the largest given, as many as a multiple of the workers
-    (:func:`balanced_chunks`), so that no worker idles while another finishes a long last chunk.
 
     Raises:
         Cancelled; WorkerDied; whatever ``fn`` raised in a worker.
@@ -770,8 +746,6 @@ def run_chunks(
         raise Cancelled(f"cancelled after 0 of {total} points")
     own = executor is None
     pool = WorkerPool(min(n_workers, len(chunks))) if own else executor
-    if divisible:
-        chunks = balanced_chunks(chunks, _executor_width(pool) // 2)
     token, blob = _payload(shared if key is None else key, shared)
     scattered = None
     client = getattr(pool, "_client", None)

@@ -97,30 +97,6 @@ def test_bit_identical_for_any_number_of_workers(scenes, receivers, serial, work
     _same_bits([h], serial["linear"][2:])
 
 
-def test_chunks_are_recut_evenly_for_the_workers():
-    """On workers a call's chunks become a multiple of the workers, nearly equal, none longer than given;
-    they cover the same points in order (the results above are the same bits as on one worker)."""
-    rng = np.random.default_rng(3)
-    for _ in range(200):
-        m, size, parts = int(rng.integers(1, 2000)), int(rng.integers(1, 400)), int(rng.integers(1, 5))
-        start = int(rng.integers(0, 50))
-        given = [(s, min(start + m, s + size)) for s in range(start, start + m, size)]
-        cut = parallel.balanced_chunks(given, parts)
-        assert cut[0][0] == start and cut[-1][1] == start + m
-        assert all(a[1] == b[0] for a, b in zip(cut[:-1], cut[1:]))
-        lengths = [e - s for s, e in cut]
-        assert min(lengths) >= 1 and max(lengths) <= size
-        if parts == 1:
-            assert cut == given  # one worker: nothing to balance
-        else:
-            assert max(lengths) - min(lengths) <= 1 and len(cut) >= len(given)
-            if m >= parts * -(-len(given) // parts):
-                assert len(cut) % parts == 0
-    # the adaptive pass's typical small call: 400 points were 384 + 16 on 2 workers
-    assert parallel.balanced_chunks([(0, 384), (384, 400)], 2) == [(0, 200), (200, 400)]
-    assert parallel.balanced_chunks([(0, 300)], 2) == [(0, 150), (150, 300)]
-
-
 def test_a_kept_pool_serves_many_calls_and_gets_the_scene_once(scenes, receivers, serial):
     with WorkerPool(3) as pool:
         for kind in ("constant", "linear"):
