@@ -8,8 +8,10 @@ the pixels this checkout's pass evaluated, in one call (the floor: the same exac
 quadtree, no shadow test and no waiting between calls). Wall seconds (the overhead is idle workers, which
 CPU time would not show); each configuration starts its own pool of ``--workers`` processes, as a job does.
 
-Prints per row: seconds of each, *pass / one call* for both passes, *this / base*, and whether the two
-passes gave the same image, exact pixels and counts (bit for bit)::
+Prints per row: seconds of each, *pass / one call* for both passes, *this / base*, whether the two
+passes gave the same image, exact pixels and counts (bit for bit), and the largest relative difference
+between this pass's samples and the one call's values (the core's last bit may depend on how a call's
+points fall into chunks)::
 
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_overhead.py --base 24c74ab
         [--scenes small,large] [--size 256] [--rel 1e-2,1e-3] [--repeat 2] [--workers 2]
@@ -50,8 +52,8 @@ def main(argv=None):
           f"--base {args.base} --scenes {args.scenes} --size {args.size} --rel {args.rel} --repeat {args.repeat} "
           f"--workers {args.workers}`\n")
     print("| polygons | tol / mean H | exact | base s | this s | one call s | base / one call | this / one call "
-          "| this / base | same image |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| this / base | same image | samples vs one call |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         base_core, base_scenes = bench_ab.import_base(args.base, Path(tmp))
         for key in args.scenes.split(","):
@@ -74,7 +76,9 @@ def main(argv=None):
                     t = time.perf_counter()
                     one = irradiance(scene, p[yy, xx], n[yy, xx], workers=args.workers)
                     best["one"] = min(best["one"], time.perf_counter() - t)
-                    assert np.array_equal(one, ht[yy, xx]), "an exact sample differs from the core's value"
+                    # the core's results may move by an ulp with the composition of a call's chunks (9,468
+                    # polygons: 24 of 65,536 points): the largest relative difference is printed
+                    drift = float((np.abs(one - ht[yy, xx]).max(axis=1) / np.abs(one).max(axis=1).clip(1e-300)).max())
                 counts = ("exact_points", "forced_surface", "forced_shadow", "rejected", "accepted")
                 same = (np.array_equal(hb, ht) and np.array_equal(sb.exact_mask, st.exact_mask)
                         and all(getattr(sb, c) == getattr(st, c) for c in counts))
@@ -82,7 +86,8 @@ def main(argv=None):
                 print(f"| {box.n_polygons:,} | {rel:g} | {st.exact_fraction:.1%} | {best['base']:.2f} | "
                       f"{best['this']:.2f} | {best['one']:.2f} | {best['base'] / best['one']:.3f} | "
                       f"{best['this'] / best['one']:.3f} | {best['this'] / best['base']:.3f} | "
-                      f"{'bit for bit' if same else 'DIFFERENT'} |", flush=True)
+                      f"{'bit for bit' if same else 'DIFFERENT'} | {'bit for bit' if drift == 0 else f'{drift:.1e}'} |",
+                      flush=True)
     print(f"\nLoad average at the end: {os.getloadavg()[0]:.1f} (1 min) on {os.cpu_count()} cores")
 
 
