@@ -4,8 +4,9 @@ integral not for all pixels and use some kind of interpolation scheme").
 
 Every pixel's camera ray is already cast (its hit point, normal and polygon are known exactly); only the
 exact hemispherical projection is expensive. :func:`adaptive_irradiance` evaluates it (with
-:func:`.local_pass.irradiance`, so every exact sample is bit for bit the value of the all-exact image)
-on a quadtree of image cells:
+:func:`.local_pass.irradiance`, so every exact sample is the all-exact image's value: bit for bit, or at
+large scenes within an ulp, where the core's last bit can depend on which points share a chunk,
+docs/adaptive.md) on a quadtree of image cells:
 
 1. The image is covered by cells of ``coarse`` pixels a side (corners shared; the last row and column
    are corners too), whose four corner pixels are evaluated exactly.
@@ -55,8 +56,8 @@ cells' children form the next round and skip the forced tests: a part of a unifo
 child's hull with a light lies inside its parent's, and an occluder narrower than the child was narrower
 than the parent. The decisions, and so the image, are those of a depth-by-depth order (each cell's tests
 see its own geometry and its own exact samples only), with one core call per round instead of two per
-depth: on the 256² Cornell box of 9,468 polygons at 1e-3 (2 workers) the pass took 1.30× the time of one
-core call over the same pixels, now 1.08× (docs/adaptive.md, "Workers").
+depth: on the 256² Cornell box of 9,468 polygons at 1e-3 (2 workers) the pass took 1.29× the time of one
+core call over the same pixels, now 1.05× (docs/adaptive.md, "Workers").
 
 Why those factors: for smooth H the bilinear interpolant's error falls with the square of the spacing,
 so the accepted interpolant (spacing halved) errs by about ``d / 4``; measured on the 256² Cornell box
@@ -409,7 +410,7 @@ def adaptive_irradiance(
             pool of the caller's :class:`.parallel.PoolKeeper` scope, else one started for this pass and
             shut down at its end). The result is bit-identical for any ``workers``.
         executor: run the exact evaluations on this executor instead (see :func:`irradiance`).
-        progress: ``progress(exact_done, hit_pixels)`` after each batch of exact evaluations (the total
+        progress: ``progress(exact_done, hit_pixels)`` after each chunk of exact evaluations (the total
             is an upper bound: most pixels are never evaluated).
         cancel: checked by the core between chunks; True raises :class:`Cancelled`.
         coarse: side of the coarsest cells in pixels (a power of two is best).
@@ -469,12 +470,13 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
         if cancel is not None and cancel():
             raise Cancelled(f"cancelled after {stats.exact_points} exact points")
         yy, xx = np.divmod(flat, w)
+        before = stats.exact_points
+        # progress after every chunk of the call (a round's call can hold most of the image's evaluations)
+        chunk_progress = None if progress is None else (lambda done, _total: progress(before + done, n_valid))
         H[yy, xx] = irradiance(scene, p[yy, xx], n[yy, xx], cancel=cancel, workers=workers,
-                               executor=executor_of_pass())
+                               executor=executor_of_pass(), progress=chunk_progress)
         exact[yy, xx] = True
         stats.exact_points += len(flat)
-        if progress is not None:
-            progress(stats.exact_points, n_valid)
 
     if tol == 0.0 or h * w == 0:
         ys, xs = np.nonzero(valid)

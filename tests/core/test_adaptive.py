@@ -256,9 +256,11 @@ def test_progress_and_cancel():
 
     scene, p, n, g, ref = prepared("chequerboard")
     seen = []
-    adaptive_irradiance(scene, p, n, g, tolerance=1e-3, progress=lambda done, total: seen.append((done, total)))
+    _, st = adaptive_irradiance(scene, p, n, g, tolerance=1e-3, progress=lambda done, total: seen.append((done, total)))
     assert seen and all(t == int((g >= 0).sum()) for _, t in seen)
-    assert [d for d, _ in seen] == sorted(d for d, _ in seen)
+    assert [d for d, _ in seen] == sorted(d for d, _ in seen) and seen[-1][0] == st.exact_points
+    # after every chunk of a core call, not once a round (a round's call holds many chunks)
+    assert len(seen) > 4
     with pytest.raises(Cancelled):
         adaptive_irradiance(scene, p, n, g, tolerance=1e-3, cancel=lambda: True)
 
