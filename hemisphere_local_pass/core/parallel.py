@@ -62,6 +62,8 @@ SHARED_KEEP = 2
 #: a call makes its own pool only for at least this many chunks (starting a worker costs ~0.15 s of CPU:
 #: Python, numpy and the core's imports); smaller calls run here, or on the caller's executor
 MIN_POOL_CHUNKS = 4
+#: the parent computes chunks while its pool's workers start only while a chunk takes less than this (s)
+HELP_SECONDS = 0.2
 #: how often the waiting parent polls ``cancel()`` (s)
 POLL_SECONDS = 0.05
 #: the answer of a worker that lacks the shared object (see :func:`_chunk_task`)
@@ -362,6 +364,11 @@ class WorkerPool(cf.Executor):
     def pids(self) -> list:
         """Process ids of the workers."""
         return [w.proc.pid for w in self._workers]
+
+    @property
+    def starting(self) -> bool:
+        """True while a worker has not yet announced itself (and the pool has not failed)."""
+        return self._broken is None and any(not w.ready for w in self._workers)
 
     @property
     def failure(self) -> BaseException | None:
@@ -761,14 +768,35 @@ def run_chunks(
         return pool.submit(_chunk_task, token, blob if with_blob else scattered, fn, args)
 
     width = _executor_width(pool)
+    # While a WorkerPool's workers start (~0.3-0.4 s wall for two: Python, numpy and the core's imports),
+    # this process would wait on an idle core: it computes chunks itself, from the end of the list, while
+    # more than two chunks per worker are left unsubmitted (so it never holds one of the job's last chunks)
+    # and while its chunks are short against the start (HELP_SECONDS: a long chunk here would outlast the
+    # start and share a core with a worker). Not for an interactive parent (nice workers): its thread would
+    # hold the GIL that Blender's window needs. A chunk here is the arithmetic of workers=1: same bits.
+    helps = isinstance(pool, WorkerPool) and pool.nice == 0
     inflight: dict = {}
     done_points = 0
     next_chunk = 0
+    last = len(chunks)  # chunks[last:] were computed here
     try:
-        while next_chunk < len(chunks) or inflight:
-            while next_chunk < len(chunks) and len(inflight) < width:
+        while next_chunk < last or inflight:
+            starting = helps and pool.starting
+            while next_chunk < last and len(inflight) < (pool.n_workers if starting else width):
                 inflight[submit(next_chunk)] = next_chunk
                 next_chunk += 1
+            if starting and last - next_chunk > 2 * pool.n_workers:
+                if cancel is not None and cancel():
+                    raise Cancelled(f"cancelled after {done_points} of {total} points")
+                last -= 1
+                s, e = chunks[last]
+                t0 = time.perf_counter()
+                store(s, e, fn(shared, *args_of(s, e)))
+                helps = time.perf_counter() - t0 < HELP_SECONDS
+                done_points += e - s
+                if progress is not None:
+                    progress(done_points, total)
+                continue
             finished, _ = cf.wait(list(inflight), timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
             for fut in finished:
                 i = inflight.pop(fut)

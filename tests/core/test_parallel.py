@@ -97,6 +97,38 @@ def test_bit_identical_for_any_number_of_workers(scenes, receivers, serial, work
     _same_bits([h], serial["linear"][2:])
 
 
+def _pids_of_chunks(n_chunks, **kw):
+    """Which process computed each of ``n_chunks`` tiny chunks (run_chunks with ``eval`` of a stdlib call)."""
+    pids = [None] * n_chunks
+
+    def store(s, e, value):
+        pids[s] = value
+
+    parallel.run_chunks(eval, "__import__('os').getpid()", [(i, i + 1) for i in range(n_chunks)],
+                        lambda s, e: (), store, key=threading.Event(), **kw)  # any weak-referenceable key
+    return pids
+
+
+def test_the_parent_computes_chunks_while_its_workers_start(scenes, box):
+    me = os.getpid()
+    pids = _pids_of_chunks(200, workers=2)
+    # the workers take ~0.3 s to start; chunks of microseconds are done here meanwhile, but never the
+    # last ones: more than two per worker are left for them
+    assert pids.count(me) > 100 and me not in pids[:5] and len(set(pids) - {me}) >= 1, pids
+    # an interactive parent (nice workers) leaves every chunk to its workers
+    with WorkerPool(2, nice=5) as pool:
+        pids = _pids_of_chunks(200, executor=pool)
+    assert me not in pids and set(pids) <= set(pool.pids)
+    # the same bits with many chunks (some computed here) as on one worker
+    rng = np.random.default_rng(11)
+    i = rng.integers(0, box.n_polygons, 300)
+    n = box.normals()[i]
+    p = box.centroids()[i] + 0.02 * np.cross(n, rng.normal(size=(300, 3)))
+    for kind in ("constant", "linear"):
+        one = irradiance(scenes[kind], p, n, budget=BUDGET, workers=1)
+        _same_bits([irradiance(scenes[kind], p, n, budget=BUDGET, workers=2)], [one])
+
+
 def test_a_kept_pool_serves_many_calls_and_gets_the_scene_once(scenes, receivers, serial):
     with WorkerPool(3) as pool:
         for kind in ("constant", "linear"):
