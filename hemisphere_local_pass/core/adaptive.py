@@ -4,9 +4,8 @@ integral not for all pixels and use some kind of interpolation scheme").
 
 Every pixel's camera ray is already cast (its hit point, normal and polygon are known exactly); only the
 exact hemispherical projection is expensive. :func:`adaptive_irradiance` evaluates it (with
-:func:`.local_pass.irradiance`, so every exact sample is the all-exact image's value: bit for bit, or at
-large scenes within an ulp, where the core's last bit can depend on which points share a chunk,
-docs/adaptive.md) on a quadtree of image cells:
+:func:`.local_pass.irradiance`, so every exact sample is bit for bit the all-exact image's value: a
+receiver's result does not depend on the others of its chunk) on a quadtree of image cells:
 
 1. The image is covered by cells of ``coarse`` pixels a side (corners shared; the last row and column
    are corners too), whose four corner pixels are evaluated exactly.

@@ -292,8 +292,11 @@ def _fragments(scene, points, normals, limit, include, occ, sv, table, cov, sign
     ``bounded`` (signed terms only) the fragments carry ``ff_bound`` (see :func:`visible`)."""
     tiles = cov.tiles
     members = (occ.tile_ptr, occ.tile_members)
-    if sv.inf is None and len(tiles.q):
-        # the cut tiles by quarters: hidden quarters and the volumes that miss a quarter cost nothing below
+    if sv.inf is None:
+        # the cut tiles by quarters: hidden quarters and the volumes that miss a quarter cost nothing below.
+        # Also when no tile of the chunk is cut: a receiver's candidates then come in sub-tile order whatever
+        # the other receivers of its chunk, and so does the order of its sums (a chunk with one cut tile
+        # elsewhere moved the last bit of 10 of 65,536 pixels at 9,468 polygons, 2026-12-07)
         st = scene_subtiles(scene, occ)
         cov = copy.copy(cov)
         cov.tiles = tiles = refine_cut_tiles(st, tiles, sv, points)
