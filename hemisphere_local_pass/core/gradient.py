@@ -580,8 +580,17 @@ def _gradients(scene, points, normals, limit_directions, progress, cancel, occlu
         e = min(m, s + size)
         if cancel is not None and cancel():
             raise Cancelled(f"cancelled after {s} of {m} points")
-        gp[s:e], gn[s:e] = _chunk_gradient(scene, occ, edges, emits, p[s:e], n[s:e],
-                                           None if u is None else u[s:e], want_pos, want_nrm)
+        uu = None if u is None else u[s:e]
+        free = None if uu is None else ~uu.any(axis=1)
+        if free is None or free.all() or not free.any():
+            gp[s:e], gn[s:e] = _chunk_gradient(scene, occ, edges, emits, p[s:e], n[s:e],
+                                               None if free is None or free.all() else uu, want_pos, want_nrm)
+        else:
+            # receivers with and without a one-sided limit apart, as local_pass._limits_apart: a receiver's
+            # gradient then does not depend on whether another receiver of its chunk has a limit
+            for sel, lim in ((free, None), (~free, uu[~free])):
+                at = s + np.flatnonzero(sel)
+                gp[at], gn[at] = _chunk_gradient(scene, occ, edges, emits, p[at], n[at], lim, want_pos, want_nrm)
         if progress is not None:
             progress(e, m)
     # the normal gradient is tangential: the derivative of H(P, N/|N|) at |N| = 1

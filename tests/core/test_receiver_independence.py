@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hemisphere_local_pass.core import form_factors, irradiance
+from hemisphere_local_pass.core import form_factors, irradiance, irradiance_gradient
 from hemisphere_local_pass.scenes import cornell_box
 
 
@@ -70,3 +70,15 @@ def test_another_receivers_limit_direction_changes_nothing(box, receivers):
         # the receiver with the limit gets the value of a call of its own
         own = fn(scene, p[~free], n[~free], limit_directions=lim[~free], workers=1)
         assert np.array_equal(_bits(mixed[~free]), _bits(own)), fn.__name__
+
+
+def test_another_receivers_limit_leaves_the_gradients_alone(box, receivers):
+    scene = box.scene(radiance=box.emission + 0.3 * box.reflectivity)
+    p, n = (a[:12] for a in receivers)
+    lim = np.zeros_like(p)
+    lim[3] = np.cross(n[3], [0.3, 0.5, 0.8])
+    lim[3] /= np.linalg.norm(lim[3])
+    plain = irradiance_gradient(scene, p, n)
+    mixed = irradiance_gradient(scene, p, n, limit_directions=lim)
+    free = ~lim.any(axis=1)
+    assert np.array_equal(_bits(mixed[free]), _bits(plain[free]))
