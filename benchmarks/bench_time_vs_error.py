@@ -135,7 +135,8 @@ def main(argv=None):
     ap.add_argument("--bpy", default=str(ROOT / ".venv" / "bpy-4.2" / "bin" / "python"), help="'' for no Cycles")
     ap.add_argument("--cycles-max-polygons", type=int, default=20000,
                     help="no Cycles rows above this many polygons: building the bpy scene of one material per "
-                         "polygon took over 10 minutes at 187,588 polygons (2026-12-06)")
+                         "polygon took over 10 minutes at 187,588 polygons (2026-12-06; material copies cost time "
+                         "growing with the materials, and a mesh holds at most 32,767 material slots)")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--serial-exact", action=argparse.BooleanOptionalAction, default=True,
                     help="also time the exact image on 1 worker where it is timed (the workers' speed-up)")
