@@ -95,6 +95,7 @@ from .local_pass import (
     visible_fragments_and_clear_tiles,
     visible_fragments_with_ff,
 )
+from .receivers import limit_groups
 from .scene import Scene
 from .tolerances import COORD_EPS
 
@@ -580,17 +581,10 @@ def _gradients(scene, points, normals, limit_directions, progress, cancel, occlu
         e = min(m, s + size)
         if cancel is not None and cancel():
             raise Cancelled(f"cancelled after {s} of {m} points")
-        uu = None if u is None else u[s:e]
-        free = None if uu is None else ~uu.any(axis=1)
-        if free is None or free.all() or not free.any():
-            gp[s:e], gn[s:e] = _chunk_gradient(scene, occ, edges, emits, p[s:e], n[s:e],
-                                               None if free is None or free.all() else uu, want_pos, want_nrm)
-        else:
-            # receivers with and without a one-sided limit apart, as local_pass._limits_apart: a receiver's
-            # gradient then does not depend on whether another receiver of its chunk has a limit
-            for sel, lim in ((free, None), (~free, uu[~free])):
-                at = s + np.flatnonzero(sel)
-                gp[at], gn[at] = _chunk_gradient(scene, occ, edges, emits, p[at], n[at], lim, want_pos, want_nrm)
+        # receivers with and without a one-sided limit apart (see receivers.limit_groups)
+        for at, lim in limit_groups(None if u is None else u[s:e]):
+            at = slice(s, e) if at is None else s + at
+            gp[at], gn[at] = _chunk_gradient(scene, occ, edges, emits, p[at], n[at], lim, want_pos, want_nrm)
         if progress is not None:
             progress(e, m)
     # the normal gradient is tangential: the derivative of H(P, N/|N|) at |N| = 1

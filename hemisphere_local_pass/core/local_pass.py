@@ -37,7 +37,7 @@ from .clear_tiles import clear_form_factors, clear_irradiance
 from .culling import Occluders
 from .far_field import ROUNDING, FarFieldStats, far_field_irradiance, proxy_scene
 from .parallel import PREPARE_LOCK, run_chunks
-from .receivers import prepare_receivers
+from .receivers import limit_groups, prepare_receivers
 from .scene import Scene
 
 __all__ = ["Cancelled", "FarFieldStats", "form_factors", "irradiance", "prepare_scene", "radiance",
@@ -124,24 +124,16 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
 
 
 def _limits_apart(shared, chunk_fn, p, n, u, *extra) -> np.ndarray:
-    """``chunk_fn(shared, p, n, u, *extra)`` with the receivers that have a one-sided limit (a non-zero row of
-    ``u``) and those that have none in two calls: ``(m_chunk, ...)``.
-
-    Why: one limit in a chunk puts the whole chunk's visibility stage on its infinitesimal path (no sub-tile
-    refinement, the ``inf`` columns), which sums the other receivers' terms in another order; their last bits
-    then depended on whether a neighbour had a limit (245 of 299 receivers moved, by up to 1.3e-15, on the
-    175-polygon box, 2026-12-07). Apart, a receiver without a limit gets the value of a call without limits."""
-    if u is not None:
-        free = ~u.any(axis=1)
-        if free.all():
-            u = None
-        elif free.any():
-            a = chunk_fn(shared, p[free], n[free], None, *extra)
-            b = chunk_fn(shared, p[~free], n[~free], u[~free], *extra)
-            out = np.empty((len(p),) + a.shape[1:], dtype=np.result_type(a, b))
-            out[free], out[~free] = a, b
-            return out
-    return chunk_fn(shared, p, n, u, *extra)
+    """``chunk_fn(shared, p, n, u, *extra)`` on the chunk's receivers with and without a one-sided limit apart
+    (:func:`.receivers.limit_groups`): ``(m_chunk, ...)``."""
+    groups = limit_groups(u)
+    if len(groups) == 1:
+        return chunk_fn(shared, p, n, groups[0][1], *extra)
+    parts = [(at, chunk_fn(shared, p[at], n[at], lim, *extra)) for at, lim in groups]
+    out = np.empty((len(p),) + parts[0][1].shape[1:], dtype=np.result_type(*(v for _, v in parts)))
+    for at, value in parts:
+        out[at] = value
+    return out
 
 
 def _form_factor_chunk(shared, p, n, u) -> np.ndarray:
