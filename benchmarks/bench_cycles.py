@@ -15,6 +15,13 @@ sampling, black world, Standard view transform, Gaussian pixel filter of width 0
 centres, where the exact image is evaluated), 2 CPU threads. The front wall closes the box but is
 invisible to camera rays.
 
+``--materials buckets`` builds the same image in expectation with few materials, for boxes where a
+material per polygon cannot be built (bpy 4.2: ~187,588 polygons; docs/bench_time_vs_error.md): the
+emitters (E > 0) keep one each; the other polygons share one per reflectivity and radiance level (each
+channel rounded to a power of :data:`BUCKET_RATIO`), reading ``L / level`` per channel from a face
+attribute. Cycles' light sampling weighs each polygon by its material's estimate, which is then its own
+L to within 2.5 % per channel (:func:`_bucket_material`).
+
 Three light-sampling modes: Blender's defaults (light tree on), light tree off, and BSDF sampling only
 (``emission_sampling = 'NONE'``). For each samples-per-pixel setting it prints the render time and the
 RMS, max and mean (bias) error of the radiance image against the exact image (luminance, relative to the
@@ -90,19 +97,15 @@ def exact_image(key, box, lum, size):
     return img.reshape(size, size, 3), seconds
 
 
-def build_blender_scene(box, lum, size, threads):
+#: ``materials="buckets"``: the ratio between neighbouring radiance levels of one channel
+BUCKET_RATIO = 1.05
+
+
+def _local_pass_template(name):
+    """The local-pass material's nodes with constant colours (``rho``, ``L``, ``E``), to be copied per polygon."""
     import bpy
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    front = np.array([nm == "front wall" for nm in box.names])
-    # One material per polygon with constant colours: Cycles estimates each mesh light's power from
-    # constant emission inputs (a colour driven by an attribute counts as 1), and its light sampling
-    # (light tree or not) is only as good as that estimate.
-    # One template material with the nodes, copied for every polygon (``use_nodes`` on a new material costs
-    # time in the number of materials: 4·10^4 took a minute and 1.9·10^5 would take most of an hour; a copy
-    # costs a fraction of it)
-    template = bpy.data.materials.new("local_pass_template")
+    template = bpy.data.materials.new(name)
     template.use_nodes = True
     nt = template.node_tree
     nt.nodes.clear()
@@ -124,16 +127,128 @@ def build_blender_scene(box, lum, size, threads):
     nt.links.new(diffuse.outputs["BSDF"], add.inputs[0])
     nt.links.new(mix.outputs["Shader"], add.inputs[1])
     nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+    return template
+
+
+def _bucket_material(name, rho, level):
+    """A bucket's material: a Diffuse BSDF of constant colour ``rho`` (3,); for rays other than camera rays
+    ``L = Σ_c level_c · a_c``, one Emission per channel c of colour ``level_c`` on channel c alone and strength
+    ``a_c`` from the face attribute ``local_pass_a`` (``L / level``, per channel); camera rays see no emission
+    (E = 0 here: emitters keep their own materials).
+
+    Cycles estimates an Emission node with a linked strength as its colour (``Shader::estimate_emission``),
+    so a polygon's estimate is ``level``, its own L within the square root of :data:`BUCKET_RATIO` in every
+    channel: the light tree weighs it (``area · average(estimate)``) as the per-polygon recipe does, to that
+    ratio. (One grey level per bucket of mean radiance instead, with the colour from the attribute, gave
+    1.2× the RMS at 16 spp on the 175-polygon box, 64²; this gives the per-polygon recipe's.)
+    """
+    import bpy
+
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (*rho, 1.0)
+    if not np.any(np.asarray(level) > 0.0):
+        nt.links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
+        return mat
+    attr = nt.nodes.new("ShaderNodeAttribute")
+    attr.attribute_type = "GEOMETRY"
+    attr.attribute_name = "local_pass_a"
+    sep = nt.nodes.new("ShaderNodeSeparateColor")  # RGB mode: the channels as they are
+    nt.links.new(attr.outputs["Color"], sep.inputs["Color"])
+    emission = None
+    for c, channel in enumerate(("Red", "Green", "Blue")):
+        if level[c] <= 0.0:
+            continue
+        em = nt.nodes.new("ShaderNodeEmission")
+        col = [0.0, 0.0, 0.0, 1.0]
+        col[c] = float(level[c])
+        em.inputs["Color"].default_value = col
+        nt.links.new(sep.outputs[channel], em.inputs["Strength"])
+        if emission is None:
+            emission = em.outputs["Emission"]
+        else:
+            both = nt.nodes.new("ShaderNodeAddShader")
+            nt.links.new(emission, both.inputs[0])
+            nt.links.new(em.outputs["Emission"], both.inputs[1])
+            emission = both.outputs["Shader"]
+    add = nt.nodes.new("ShaderNodeAddShader")
+    mix = nt.nodes.new("ShaderNodeMixShader")  # second closure unlinked: camera rays see no emission
+    path = nt.nodes.new("ShaderNodeLightPath")
+    nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
+    nt.links.new(emission, mix.inputs[1])
+    nt.links.new(diffuse.outputs["BSDF"], add.inputs[0])
+    nt.links.new(mix.outputs["Shader"], add.inputs[1])
+    nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+    return mat
+
+
+def radiance_buckets(rho, lum, ratio=BUCKET_RATIO):
+    """Buckets for ``materials="buckets"``: ``(rho (k, 3), level (k, 3), bucket (n,) int)``.
+
+    Polygons share a bucket when their reflectivity ``rho (n, 3)`` is the same and each channel of their
+    radiance ``lum (n, 3)`` rounds to the same ``level_c = ratio**round(log_ratio L_c)`` (0 where L_c = 0),
+    so ``L_c / level_c`` lies in ``[ratio**-0.5, ratio**0.5]``.
+    """
+    lum = np.asarray(lum, dtype=np.float64)
+    pos = lum > 0.0
+    q = np.where(pos, np.round(np.log(np.where(pos, lum, 1.0)) / np.log(ratio)), -1e9)
+    keys, bucket = np.unique(np.column_stack([np.asarray(rho, dtype=np.float64), q]), axis=0, return_inverse=True)
+    level = np.where(keys[:, 3:] > -1e8, ratio ** keys[:, 3:], 0.0)
+    return keys[:, :3], level, bucket.reshape(-1)
+
+
+def build_blender_scene(box, lum, size, threads, materials="polygon"):
+    """bpy scene of the local-pass equivalent (module docstring); ``(scene, materials)``.
+
+    ``materials``: ``"polygon"``, one material per polygon with constant colours (the recipe of every
+    table before 2026-12-07); ``"buckets"``, one material per polygon for the emitters (E > 0) and, for
+    the others, one per reflectivity and radiance level (:func:`radiance_buckets`) reading ``L / level``
+    from a face attribute (:func:`_bucket_material`): the same image in expectation, Cycles' light-sampling
+    weights within the square root of :data:`BUCKET_RATIO` per channel of the per-polygon ones, and buildable
+    at 187,588 polygons (per-polygon
+    materials are not, in bpy 4.2: docs/bench_time_vs_error.md).
+    """
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    front = np.array([nm == "front wall" for nm in box.names])
+    # One material per polygon with constant colours: Cycles estimates each mesh light's power from
+    # constant emission inputs (a colour driven by an attribute counts as 1), and its light sampling
+    # (light tree or not) is only as good as that estimate.
+    # One template material with the nodes, copied for every polygon (``use_nodes`` on a new material costs
+    # time in the number of materials: 4·10^4 took a minute and 1.9·10^5 would take most of an hour; a copy
+    # costs a fraction of it)
+    if materials not in ("polygon", "buckets"):
+        raise ValueError(f"materials must be 'polygon' or 'buckets', got {materials!r}")
+    template = _local_pass_template("local_pass_template")
+    own = np.ones(box.n_polygons, bool) if materials == "polygon" else np.asarray(box.emission).max(axis=1) > 0
+    slot_of = np.empty(box.n_polygons, dtype=np.int64)  # index into mats
     mats = []
-    for i in range(box.n_polygons):
+    for i in np.flatnonzero(own):
         mat = template.copy()
         mat.name = f"local_pass_{i:07d}"  # names in order: each is inserted at the end of the sorted list
         nodes = mat.node_tree.nodes
         nodes["rho"].inputs["Color"].default_value = (*box.reflectivity[i], 1.0)
         nodes["L"].inputs["Color"].default_value = (*lum[i], 1.0)
         nodes["E"].inputs["Color"].default_value = (*box.emission[i], 1.0)
+        slot_of[i] = len(mats)
         mats.append(mat)
     bpy.data.materials.remove(template)
+    l_attr = np.zeros((box.n_polygons, 3))  # L / level per channel: the bucketed polygons' emission strengths
+    if not own.all():
+        rest = np.flatnonzero(~own)
+        rhos, levels, bucket = radiance_buckets(box.reflectivity[rest], lum[rest])
+        for b, (rho, level) in enumerate(zip(rhos, levels)):
+            mats.append(_bucket_material(f"local_pass_bucket_{b:05d}", rho, level))
+        slot_of[rest] = len(mats) - len(levels) + bucket
+        lv = levels[bucket]
+        l_attr[rest] = np.where(lv > 0, lum[rest] / np.where(lv > 0, lv, 1.0), 0.0)
+        log(f"buckets: {own.sum()} emitter materials, {len(levels)} bucket materials for {len(rest)} polygons")
 
     for label, sel in (("room", ~front), ("front_wall", front)):
         idx = np.flatnonzero(sel)
@@ -141,9 +256,15 @@ def build_blender_scene(box, lum, size, threads):
         mesh = bpy.data.meshes.new(label)
         mesh.from_pydata([tuple(v) for v in box.vertices], [], polys)
         mesh.update()
-        for i in idx:
-            mesh.materials.append(mats[i])
-        mesh.polygons.foreach_set("material_index", np.arange(len(idx), dtype=np.int32))
+        used, local = np.unique(slot_of[idx], return_inverse=True)
+        for k in used:
+            mesh.materials.append(mats[k])
+        mesh.polygons.foreach_set("material_index", local.reshape(-1).astype(np.int32))
+        if materials == "buckets":
+            attr = mesh.attributes.new("local_pass_a", "FLOAT_COLOR", "FACE")
+            rgba = np.ones((len(idx), 4), dtype=np.float32)
+            rgba[:, :3] = l_attr[idx]
+            attr.data.foreach_set("color", rgba.reshape(-1))
         mesh.update()
         obj = bpy.data.objects.new(label, mesh)
         scene.collection.objects.link(obj)
@@ -249,6 +370,8 @@ def main(argv=None):
     ap.add_argument("--modes", default="default,light tree off,BSDF sampling only")
     ap.add_argument("--max-seconds", type=float, default=600.0, help="stop a mode once a render takes longer")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--materials", choices=("polygon", "buckets"), default="polygon",
+                    help="one material per polygon, or the bucketed recipe (build_blender_scene)")
     ap.add_argument("--out", default=str(DOCS / "bench_cycles"))
     args = ap.parse_args(argv)
     import bpy
@@ -258,7 +381,7 @@ def main(argv=None):
     md = [f"# Cycles against the exact local pass\n\nMachine: {machine()}; Blender {bpy.app.version_string} "
           f"(bpy module), {args.threads} render threads\n",
           f"Command: `OMP_NUM_THREADS=1 \"$(bpy_python 4.2)\" benchmarks/bench_cycles.py --scenes {args.scenes} "
-          f"--size {args.size} --spp {args.spp}`\n",
+          f"--size {args.size} --spp {args.spp} --materials {args.materials}`\n",
           "Errors: radiance image (E + ρH/π) against the exact image, luminance, relative to its mean; "
           "bias = mean error. Times are wall-clock render times (scene sync included).\n"]
     for key in args.scenes.split(","):
@@ -268,8 +391,12 @@ def main(argv=None):
         y_exact = luminance(exact)
         mean = float(y_exact.mean())
         log(f"[{key}] exact image {args.size}² in {t_exact:.1f} s (cached or computed)")
-        scene, mats = build_blender_scene(box, lum, args.size, args.threads)
-        entry = {"scene": key, "polygons": box.n_polygons, "exact_seconds": t_exact, "modes": {}}
+        t = time.perf_counter()
+        scene, mats = build_blender_scene(box, lum, args.size, args.threads, materials=args.materials)
+        build = time.perf_counter() - t
+        log(f"[{key}] bpy scene ({args.materials} materials) built in {build:.1f} s")
+        entry = {"scene": key, "polygons": box.n_polygons, "exact_seconds": t_exact, "modes": {},
+                 "materials": args.materials, "build_seconds": build}
         md.append(f"## {box.n_polygons} polygons, {args.size}×{args.size}\n")
         md.append(f"Exact image: {t_exact:.1f} s ({t_exact / args.size**2 * 1e3:.3f} ms per pixel).\n")
         md.append("| mode | spp | seconds | RMS error | max error | bias |")

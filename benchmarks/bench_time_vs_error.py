@@ -82,22 +82,26 @@ def run_adaptive(scene, inputs, tol, workers):
     return h, st, time.perf_counter() - t
 
 
-def cycles_rows(bpy_python, key, size, spp, exact_radiance, max_seconds):
-    """Render with Cycles in a bpy subprocess (this file's ``--cycles-worker`` mode); rows per spp."""
+def cycles_rows(bpy_python, key, size, spp, exact_radiance, max_seconds, materials):
+    """Render with Cycles in a bpy subprocess (this file's ``--cycles-worker`` mode).
+
+    Returns ``(rows per spp, Blender version, seconds to build the bpy scene)``, or Nones if it failed.
+    """
     with tempfile.TemporaryDirectory() as tmp:
         ref = Path(tmp) / "exact.npy"
         np.save(ref, exact_radiance)
         out = Path(tmp) / "rows.json"
-        cmd = [bpy_python, __file__, "--cycles-worker", key, str(size), spp, str(ref), str(out), str(max_seconds)]
+        cmd = [bpy_python, __file__, "--cycles-worker", key, str(size), spp, str(ref), str(out), str(max_seconds),
+               materials]
         r = subprocess.run(cmd, stdout=sys.stderr, stderr=sys.stderr, check=False, env=dict(os.environ))
         if r.returncode != 0:
             log(f"[{key}] Cycles worker failed with exit code {r.returncode}")
-            return None, None
+            return None, None, None
         data = json.loads(out.read_text())
-        return data["rows"], data["blender"]
+        return data["rows"], data["blender"], data["build_seconds"]
 
 
-def cycles_worker(key, size, spp, ref_path, out_path, max_seconds):
+def cycles_worker(key, size, spp, ref_path, out_path, max_seconds, materials):
     """Inside a bpy Python: build bench_cycles' scene, render at each spp, compare with the exact image."""
     import bench_cycles
     import bpy
@@ -108,8 +112,9 @@ def cycles_worker(key, size, spp, ref_path, out_path, max_seconds):
     y_exact = luminance(exact)
     mean = float(y_exact.mean())
     t = time.perf_counter()
-    scene, mats = bench_cycles.build_blender_scene(box, lum, size, threads=2)
-    log(f"[{key}] Cycles scene built in {time.perf_counter() - t:.1f} s")
+    scene, mats = bench_cycles.build_blender_scene(box, lum, size, threads=2, materials=materials)
+    build = time.perf_counter() - t
+    log(f"[{key}] Cycles scene ({materials} materials) built in {build:.1f} s")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for s in (int(x) for x in spp.split(",")):
@@ -120,7 +125,7 @@ def cycles_worker(key, size, spp, ref_path, out_path, max_seconds):
             log(f"[{key}] Cycles {s} spp: {sec:.1f} s, RMS {rows[-1]['rms']:.2e}, bias {rows[-1]['bias']:+.1e}")
             if sec > max_seconds:
                 break
-    Path(out_path).write_text(json.dumps({"rows": rows, "blender": bpy.app.version_string}))
+    Path(out_path).write_text(json.dumps({"rows": rows, "blender": bpy.app.version_string, "build_seconds": build}))
 
 
 def main(argv=None):
@@ -133,10 +138,11 @@ def main(argv=None):
     ap.add_argument("--exact-time", default="", help="scenes whose exact image is timed in this run "
                     "(default: those below 20,000 polygons; others use the cached reference)")
     ap.add_argument("--bpy", default=str(ROOT / ".venv" / "bpy-4.2" / "bin" / "python"), help="'' for no Cycles")
-    ap.add_argument("--cycles-max-polygons", type=int, default=20000,
-                    help="no Cycles rows above this many polygons: building the bpy scene of one material per "
-                         "polygon took over 10 minutes at 187,588 polygons (2026-12-06; material copies cost time "
-                         "growing with the materials, and a mesh holds at most 32,767 material slots)")
+    ap.add_argument("--cycles-buckets-above", type=int, default=20000,
+                    help="above this many polygons Cycles gets bench_cycles' materials='buckets' recipe: one "
+                         "material per polygon was not built in 10 minutes at 187,588 polygons (2026-12-06; "
+                         "material copies cost time growing with the materials, and a mesh holds at most 32,767 "
+                         "material slots)")
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--serial-exact", action=argparse.BooleanOptionalAction, default=True,
                     help="also time the exact image on 1 worker where it is timed (the workers' speed-up)")
@@ -198,12 +204,14 @@ def main(argv=None):
                            h_max=float(np.abs(h - exact_h).max() / mean_h))
             entry["rows"].append(row)
             log(f"[{key}] adaptive {rel:g}: {sec:.1f} s, {st.exact_points} exact, {row}")
-        if box.n_polygons > args.cycles_max_polygons:
-            entry["cycles_skipped"] = f"above --cycles-max-polygons {args.cycles_max_polygons}"
-        elif args.bpy and rad_exact is not None and Path(args.bpy).exists():
-            rows, blender = cycles_rows(args.bpy, key, args.size, args.spp, rad_exact, args.max_seconds)
+        if args.bpy and rad_exact is not None and Path(args.bpy).exists():
+            materials = "buckets" if box.n_polygons > args.cycles_buckets_above else "polygon"
+            rows, blender, build = cycles_rows(args.bpy, key, args.size, args.spp, rad_exact, args.max_seconds,
+                                               materials)
             if rows:
                 entry["blender"] = blender
+                entry["cycles_materials"] = materials
+                entry["cycles_build_seconds"] = build
                 for r in rows:
                     entry["rows"].append({"method": f"Cycles {r['spp']} spp", **r})
                 errs, secs = [r["rms"] for r in rows], [r["seconds"] for r in rows]
@@ -235,18 +243,24 @@ def write(report, out):
             md.append(f"| {r['method']} | {r['seconds']:.1f} | {r.get('exact_points', '—')} | {exact} | "
                       f"{'0' if r['method'].startswith('exact') else f('max')} | {f('h_max')} | {f('estimate')} | "
                       f"{f('bias', '{:+.1e}')} |")
-        if e.get("cycles_skipped"):
+        if e.get("cycles_skipped"):  # reports of runs before 2026-12-07
             md.append(f"\nNo Cycles rows: {e['cycles_skipped']} (bpy builds a material per polygon in time growing "
                       "with the number of materials).")
         if e.get("cycles_1pct") is not None or "blender" in e:
             c1 = e.get("cycles_1pct")
-            md.append(f"\nCycles (Blender {e.get('blender', '?')}, default light sampling, 2 threads) reaches 1 % RMS "
-                      f"in {'—' if c1 is None else f'{c1:.1f} s'} (log-log interpolation between spp settings).")
+            recipe = {"polygon": "a material per polygon",
+                      "buckets": "bench_cycles' bucketed materials: emitters one each, the rest by radiance level, "
+                                 "ρ and L from face attributes"}.get(e.get("cycles_materials", "polygon"))
+            build = e.get("cycles_build_seconds")
+            built = "" if build is None else f", bpy scene built in {build:.1f} s, not counted"
+            md.append(f"\nCycles (Blender {e.get('blender', '?')}, {recipe}{built}; default light sampling, 2 threads) "
+                      f"reaches 1 % RMS in {'—' if c1 is None else f'{c1:.1f} s'} (log-log interpolation between spp "
+                      "settings).")
             a3 = next((r for r in e["rows"] if r.get("rel") == 1e-3), None)
             if c1 is not None and a3 is not None:
                 md.append(f"Adaptive at 1e-3 (max error {a3.get('max', float('nan')):.1e} of the mean): "
                           f"{a3['seconds']:.1f} s, {c1 / a3['seconds']:.2f}× Cycles' time to 1 % RMS.")
-            ex = next((r for r in e["rows"] if r["method"] == "exact"), None)
+            ex = next((r for r in e["rows"] if r["method"] in ("exact", "exact (cached)")), None)
             if c1 is not None and ex is not None:
                 md.append(f"Exact image: {ex['seconds']:.1f} s, {c1 / ex['seconds']:.2f}× Cycles' time to 1 % RMS.")
         one = next((r for r in e["rows"] if r["method"] == "exact, 1 worker"), None)
@@ -304,6 +318,7 @@ def plot(report, path):
 if __name__ == "__main__":
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     if len(sys.argv) > 1 and sys.argv[1] == "--cycles-worker":
-        cycles_worker(sys.argv[2], int(sys.argv[3]), sys.argv[4], sys.argv[5], sys.argv[6], float(sys.argv[7]))
+        cycles_worker(sys.argv[2], int(sys.argv[3]), sys.argv[4], sys.argv[5], sys.argv[6], float(sys.argv[7]),
+                      sys.argv[8])
     else:
         main()
