@@ -248,9 +248,10 @@ def write(report, out):
                       "with the number of materials).")
         if e.get("cycles_1pct") is not None or "blender" in e:
             c1 = e.get("cycles_1pct")
-            recipe = {"polygon": "a material per polygon",
-                      "buckets": "bench_cycles' bucketed materials: emitters one each, the rest by radiance level, "
-                                 "ρ and L from face attributes"}.get(e.get("cycles_materials", "polygon"))
+            recipes = {"polygon": "a material per polygon",
+                       "buckets": "bench_cycles' bucketed materials: emitters one each, the rest one per "
+                                  "reflectivity and radiance level, L / level from a face attribute"}
+            recipe = recipes.get(e.get("cycles_materials", "polygon"))
             build = e.get("cycles_build_seconds")
             built = "" if build is None else f", bpy scene built in {build:.1f} s, not counted"
             md.append(f"\nCycles (Blender {e.get('blender', '?')}, {recipe}{built}; default light sampling, 2 threads) "
