@@ -101,16 +101,35 @@ def exact_image(key, box, lum, size):
 BUCKET_RATIO = 1.05
 
 
-def _local_pass_template(name):
-    """The local-pass material's nodes with constant colours (``rho``, ``L``, ``E``), to be copied per polygon."""
+def _new_material(name):
+    """A node material with no nodes: ``(material, node tree, its new Material Output node)``."""
     import bpy
 
-    template = bpy.data.materials.new(name)
-    template.use_nodes = True
-    nt = template.node_tree
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nt = mat.node_tree
     nt.nodes.clear()
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    return mat, nt, nt.nodes.new("ShaderNodeOutputMaterial")
+
+
+def _wire_local_pass(nt, out, bsdf, other_rays, camera_rays=None):
+    """Link ``out``'s surface to ``bsdf + (Is Camera Ray ? camera_rays : other_rays)`` (emission shader outputs;
+    ``camera_rays`` None: camera rays see no emission)."""
     add = nt.nodes.new("ShaderNodeAddShader")
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    path = nt.nodes.new("ShaderNodeLightPath")
+    nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
+    nt.links.new(other_rays, mix.inputs[1])
+    if camera_rays is not None:
+        nt.links.new(camera_rays, mix.inputs[2])
+    nt.links.new(bsdf, add.inputs[0])
+    nt.links.new(mix.outputs["Shader"], add.inputs[1])
+    nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+
+
+def _local_pass_template(name):
+    """The local-pass material's nodes with constant colours (``rho``, ``L``, ``E``), to be copied per polygon."""
+    template, nt, out = _new_material(name)
     diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
     diffuse.name = "rho"
     em_l = nt.nodes.new("ShaderNodeEmission")  # other rays: first-pass radiance L
@@ -119,14 +138,7 @@ def _local_pass_template(name):
     em_e.name = "E"
     for em in (em_l, em_e):
         em.inputs["Strength"].default_value = 1.0
-    mix = nt.nodes.new("ShaderNodeMixShader")
-    path = nt.nodes.new("ShaderNodeLightPath")
-    nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
-    nt.links.new(em_l.outputs["Emission"], mix.inputs[1])
-    nt.links.new(em_e.outputs["Emission"], mix.inputs[2])
-    nt.links.new(diffuse.outputs["BSDF"], add.inputs[0])
-    nt.links.new(mix.outputs["Shader"], add.inputs[1])
-    nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+    _wire_local_pass(nt, out, diffuse.outputs["BSDF"], em_l.outputs["Emission"], em_e.outputs["Emission"])
     return template
 
 
@@ -142,13 +154,7 @@ def _bucket_material(name, rho, level):
     ratio. (One grey level per bucket of mean radiance instead, with the colour from the attribute, gave
     1.2× the RMS at 16 spp on the 175-polygon box, 64²; this gives the per-polygon recipe's.)
     """
-    import bpy
-
-    mat = bpy.data.materials.new(name)
-    mat.use_nodes = True
-    nt = mat.node_tree
-    nt.nodes.clear()
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    mat, nt, out = _new_material(name)
     diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
     diffuse.inputs["Color"].default_value = (*rho, 1.0)
     if not np.any(np.asarray(level) > 0.0):
@@ -175,14 +181,7 @@ def _bucket_material(name, rho, level):
             nt.links.new(emission, both.inputs[0])
             nt.links.new(em.outputs["Emission"], both.inputs[1])
             emission = both.outputs["Shader"]
-    add = nt.nodes.new("ShaderNodeAddShader")
-    mix = nt.nodes.new("ShaderNodeMixShader")  # second closure unlinked: camera rays see no emission
-    path = nt.nodes.new("ShaderNodeLightPath")
-    nt.links.new(path.outputs["Is Camera Ray"], mix.inputs["Fac"])
-    nt.links.new(emission, mix.inputs[1])
-    nt.links.new(diffuse.outputs["BSDF"], add.inputs[0])
-    nt.links.new(mix.outputs["Shader"], add.inputs[1])
-    nt.links.new(add.outputs["Shader"], out.inputs["Surface"])
+    _wire_local_pass(nt, out, diffuse.outputs["BSDF"], emission)  # camera rays: no emission
     return mat
 
 

@@ -1,28 +1,12 @@
 """``bench_cycles.radiance_buckets``: the bucketed Cycles recipe of the time-vs-error benchmark at ~170,000
 polygons keeps each polygon's light-sampling weight within the square root of the bucket ratio per channel."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
-
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
-
-
-def _bench_cycles():
-    sys.path.insert(0, str(BENCH))  # its sibling module _common
-    try:
-        spec = importlib.util.spec_from_file_location("hlp_bench_cycles", BENCH / "bench_cycles.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(BENCH))
-    return mod
+from benchmark_modules import load
 
 
 def test_buckets_hold_one_reflectivity_and_levels_within_the_ratio():
-    mod = _bench_cycles()
+    mod = load("bench_cycles")
     rng = np.random.default_rng(3)
     n = 5000
     wall = rng.integers(0, 3, n)
