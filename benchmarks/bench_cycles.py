@@ -208,22 +208,21 @@ def build_blender_scene(box, lum, size, threads, materials="polygon"):
     the others, one per reflectivity and radiance level (:func:`radiance_buckets`) reading ``L / level``
     from a face attribute (:func:`_bucket_material`): the same image in expectation, Cycles' light-sampling
     weights within the square root of :data:`BUCKET_RATIO` per channel of the per-polygon ones, and buildable
-    at 187,588 polygons (per-polygon
-    materials are not, in bpy 4.2: docs/bench_time_vs_error.md).
+    at 187,588 polygons (per-polygon materials are not, in bpy 4.2: docs/bench_time_vs_error.md).
     """
     import bpy
 
+    if materials not in ("polygon", "buckets"):
+        raise ValueError(f"materials must be 'polygon' or 'buckets', got {materials!r}")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     front = np.array([nm == "front wall" for nm in box.names])
-    # One material per polygon with constant colours: Cycles estimates each mesh light's power from
-    # constant emission inputs (a colour driven by an attribute counts as 1), and its light sampling
-    # (light tree or not) is only as good as that estimate.
-    # One template material with the nodes, copied for every polygon (``use_nodes`` on a new material costs
-    # time in the number of materials: 4·10^4 took a minute and 1.9·10^5 would take most of an hour; a copy
-    # costs a fraction of it)
-    if materials not in ("polygon", "buckets"):
-        raise ValueError(f"materials must be 'polygon' or 'buckets', got {materials!r}")
+    # Constant colours where a polygon has its own material: Cycles estimates each mesh light's power from
+    # constant emission inputs (a colour driven by an attribute counts as 1), and its light sampling (light
+    # tree or not) is only as good as that estimate (buckets: see _bucket_material).
+    # One template material with the nodes, copied for every such polygon (``use_nodes`` on a new material
+    # costs time in the number of materials: 4·10^4 took a minute and 1.9·10^5 would take most of an hour; a
+    # copy costs a fraction of it)
     template = _local_pass_template("local_pass_template")
     own = np.ones(box.n_polygons, bool) if materials == "polygon" else np.asarray(box.emission).max(axis=1) > 0
     slot_of = np.empty(box.n_polygons, dtype=np.int64)  # index into mats

@@ -243,9 +243,6 @@ def write(report, out):
             md.append(f"| {r['method']} | {r['seconds']:.1f} | {r.get('exact_points', '—')} | {exact} | "
                       f"{'0' if r['method'].startswith('exact') else f('max')} | {f('h_max')} | {f('estimate')} | "
                       f"{f('bias', '{:+.1e}')} |")
-        if e.get("cycles_skipped"):  # reports of runs before 2026-12-07
-            md.append(f"\nNo Cycles rows: {e['cycles_skipped']} (bpy builds a material per polygon in time growing "
-                      "with the number of materials).")
         if e.get("cycles_1pct") is not None or "blender" in e:
             c1 = e.get("cycles_1pct")
             recipes = {"polygon": "a material per polygon",
