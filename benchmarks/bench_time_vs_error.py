@@ -6,7 +6,8 @@ The 256² Cornell box (``benchmarks/bench_cycles.py``'s camera with its sub-pixe
 * **exact**: ``core.adaptive_irradiance(..., tolerance=0)`` (every hit pixel exact, bit for bit the
   image of ``core.irradiance``), with ``workers`` = all cores when the core accepts it;
 * **adaptive**: ``core.adaptive_irradiance`` at tolerances 1e-2, 1e-3, 1e-4 of the image's mean
-  irradiance (absolute per channel, the core's own units);
+  irradiance (absolute per channel, the core's own units), its samples from the error-bounded far field
+  with ``--sample-share`` of the tolerance (default ``core.adaptive.SAMPLE_SHARE``, the Blender job's);
 * **Cycles**: ``bench_cycles.py``'s local-pass-equivalent recipe (one material per polygon, max bounces
   0, no denoising, 2 threads, Blender's default light sampling) at increasing spp, run in a ``bpy``
   Python (``--bpy``, default ``.venv/bpy-4.2/bin/python``) as a subprocess of this run.
@@ -20,7 +21,7 @@ own metric), and Cycles' bias (mean error). Writes ``docs/bench_time_vs_error.md
 its hand-written marker line (``_common.KEEP_PREFIX``)::
 
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_time_vs_error.py [--scenes small,large,huge]
-        [--size 256] [--spp 1,4,16,64,256,1024] [--rel 1e-2,1e-3,1e-4]
+        [--size 256] [--spp 1,4,16,64,256,1024] [--rel 1e-2,1e-3,1e-4] [--sample-share 0.25]
 
 The all-exact reference of a scene is cached (``HLP_CACHE``, ``exact_H_<scene>_<n>_<size>.npz``) with
 the command and seconds that made it; ``--exact-time`` (default: scenes below 20,000 polygons) says
@@ -45,6 +46,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import CACHE, ROOT, log, luminance, machine, solved_radiance, with_kept_sections  # noqa: E402
 
+from hemisphere_local_pass.core.adaptive import SAMPLE_SHARE  # noqa: E402
 from hemisphere_local_pass.scenes import PAPER_SETTINGS, cornell_box  # noqa: E402
 
 DOCS = ROOT / "docs"
@@ -73,12 +75,12 @@ def prepare(key, size):
     return box, lum, scene, (p, n, g), rho, emit, time.perf_counter() - t
 
 
-def run_adaptive(scene, inputs, tol, workers):
+def run_adaptive(scene, inputs, tol, workers, sample_share=0.0):
     from hemisphere_local_pass.core import adaptive_irradiance
 
     p, n, g = inputs
     t = time.perf_counter()
-    h, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=workers)
+    h, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=workers, sample_share=sample_share)
     return h, st, time.perf_counter() - t
 
 
@@ -146,6 +148,9 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=os.cpu_count())
     ap.add_argument("--serial-exact", action=argparse.BooleanOptionalAction, default=True,
                     help="also time the exact image on 1 worker where it is timed (the workers' speed-up)")
+    ap.add_argument("--sample-share", type=float, default=SAMPLE_SHARE,
+                    help="the adaptive samples' far-field share of the tolerance (core.adaptive.SAMPLE_SHARE, the "
+                         "Blender job's; 0: exact samples)")
     ap.add_argument("--out", default=str(DOCS / "bench_time_vs_error"))
     ap.add_argument("--replot", action="store_true", help="only redraw OUT.png from OUT.json (no run)")
     args = ap.parse_args(argv)
@@ -155,9 +160,11 @@ def main(argv=None):
     import bench_cycles
 
     command = ("OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_time_vs_error.py "
-               f"--scenes {args.scenes} --size {args.size} --rel {args.rel} --spp {args.spp}")
+               f"--scenes {args.scenes} --size {args.size} --rel {args.rel} --spp {args.spp} "
+               f"--sample-share {args.sample_share:g}")
     rels = [float(r) for r in args.rel.split(",")]
-    report = {"machine": machine(), "command": command, "size": args.size, "workers": args.workers, "scenes": []}
+    report = {"machine": machine(), "command": command, "size": args.size, "workers": args.workers,
+              "sample_share": args.sample_share, "scenes": []}
     for key in args.scenes.split(","):
         box, lum, scene, inputs, rho, emit, t_prep = prepare(key, args.size)
         log(f"[{key}] {box.n_polygons} polygons: preparation {t_prep:.1f} s")
@@ -193,10 +200,11 @@ def main(argv=None):
                 probe, _, _ = run_adaptive(scene, inputs, 0.05 * float(np.pi * np.abs(lum).mean()), args.workers)
                 mean_h = float(probe[hit].mean())
                 entry["mean_from_probe"] = True
-            h, st, sec = run_adaptive(scene, inputs, rel * mean_h, args.workers)
+            h, st, sec = run_adaptive(scene, inputs, rel * mean_h, args.workers, args.sample_share)
             row = {"method": f"adaptive {rel:g}", "rel": rel, "seconds": sec, "exact_points": st.exact_points,
-                   "estimate": st.error_estimate / mean_h, "forced_surface": st.forced_surface,
-                   "forced_shadow": st.forced_shadow, "rejected": st.rejected, "accepted": st.accepted}
+                   "estimate": st.error_estimate / mean_h, "sample_bound": st.sample_bound / mean_h,
+                   "forced_surface": st.forced_surface, "forced_shadow": st.forced_shadow, "rejected": st.rejected,
+                   "accepted": st.accepted}
             if exact_h is not None:
                 dy = luminance(emit + rho / np.pi * h) - y_exact
                 row.update(rms=float(np.sqrt(np.mean(dy * dy)) / y_exact.mean()),
@@ -230,7 +238,10 @@ def write(report, out):
           f"Command: `{report['command']}`\n",
           "Errors: radiance image E + ρH/π against the exact image, luminance, relative to its mean (Cycles' "
           "metric); *H max* = largest per-channel |ΔH| over the mean H (the adaptive tolerance's metric). "
-          "Seconds exclude preparation (scene, first pass from cache, camera rays, BVH), given per scene.\n"]
+          "Seconds exclude preparation (scene, first pass from cache, camera rays, BVH), given per scene.\n",
+          f"Adaptive samples: far field with {report.get('sample_share', 0.0):g} of the tolerance "
+          "(`sample_share`, core/adaptive.py step 5; 0: exact samples); *exact evaluations* of an adaptive row "
+          "count its samples.\n"]
     for e in report["scenes"]:
         md.append(f"## {e['polygons']} polygons (preparation {e['preparation_seconds']:.1f} s)\n")
         md.append("| method | seconds | exact evaluations | RMS error | max error | H max / mean H | "
