@@ -111,8 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--samples", type=int, default=None, metavar="K", help="K x K rays per pixel")
     r.add_argument("--tolerance", type=float, default=None, metavar="REL",
                    help="error tolerance relative to the mean irradiance (e.g. 1e-3; 0 = exact; default: scene "
-                   "setting or 0). Pixels: the adaptive pass (exact samples, the rest interpolated); vertices: the "
-                   "error-bounded far field, its bound in the attribute <irradiance attribute>_bound")
+                   "setting or 0). Pixels: the adaptive pass (samples error-bounded, the rest interpolated); "
+                   "vertices: the error-bounded far field, its bound in the attribute <irradiance attribute>_bound")
     r.add_argument("--missing", choices=("error", "black"), default=None,
                    help="objects without the attribute: error (default) or black occluders")
     r.add_argument("--no-preview", action="store_true", help="do not write the PNG preview")

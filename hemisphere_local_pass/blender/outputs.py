@@ -14,8 +14,8 @@ EXR channels (all FLOAT, 32-bit; one part, scanlines, ZIP compression):
 ``Z``                 view depth (camera-space -z) of the pixel centre's hit; 1e10 for a miss
 ``object_index``      index of the hit object in the job's object list; -1 for a miss
 ``polygon_index``     polygon index inside that object's evaluated mesh; -1 for a miss
-``error_estimate``    adaptive pass: estimated error of H (W m^-2), 0 where exact
-``exact_sample``      fraction of the pixel's samples whose H was evaluated exactly (1: all)
+``error_estimate``    adaptive pass: estimated error of H (W m^-2); at its samples their bound, 0 where exact
+``exact_sample``      fraction of the pixel's samples evaluated by the core, not interpolated (1: all)
 ===================== ============================================================
 
 Written with the OpenEXR package (ZIP compression) when it is importable (the built extension bundles

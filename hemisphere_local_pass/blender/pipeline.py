@@ -122,8 +122,9 @@ def local_pass_steps(
             render engine's); default: the view layer's.
         tolerance: pixels mode: 0 (default) evaluates every pixel exactly; > 0 runs the adaptive pass
             (``core.adaptive_irradiance``) with an error tolerance on H *relative to the image's mean
-            irradiance* (estimated from exact values on a 16-pixel grid), e.g. 1e-3; the EXR's
-            ``error_estimate`` and ``exact_sample`` layers show where it interpolated. The adaptive
+            irradiance* (estimated from exact values on a 16-pixel grid), e.g. 1e-3, its samples from the
+            far field with ``core.adaptive.SAMPLE_SHARE`` of the tolerance; the EXR's ``error_estimate``
+            and ``exact_sample`` layers show the estimate (the samples' bounds) and where it interpolated. The adaptive
             pass neither checkpoints nor computes the ``form_factor_sum`` layer (NaN there); it yields
             a step every ``adaptive_pixels.POLL_SECONDS`` while its core calls run in a thread.
             Vertices mode: 0 is exact; > 0 (relative to the receivers' mean irradiance, estimated from

@@ -73,8 +73,8 @@ class HLP_PG_settings(bpy.types.PropertyGroup):
         name="Tolerance",
         description=(
             "Largest error of the irradiance relative to its mean (e.g. 0.001); 0 is exact. Pixels: the adaptive "
-            "pass interpolates between exact samples. Vertices: the error-bounded far field; its bound is written "
-            "to the attribute '<Irradiance Attribute>_bound'"
+            "pass interpolates between error-bounded samples. Vertices: the error-bounded far field; its bound is "
+            "written to the attribute '<Irradiance Attribute>_bound'"
         ),
         default=0.0,
         min=0.0,
