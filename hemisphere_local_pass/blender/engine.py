@@ -13,8 +13,8 @@ Passes (``update_render_passes`` / ``register_pass``, as Cycles' ``engine.py``):
 ``Depth``           Z       view depth of the pixel centre's hit (Blender's Z pass)
 ``Irradiance``      RGB     H (eq. 3), W m^-2
 ``Form Factor Sum`` X       sum of the visible form factors (1 inside a closed scene)
-``Error Estimate``  X       error bound of the adaptive (tolerance) job; 0 where computed exactly
-``Exact Samples``   X       fraction of the pixel's samples computed exactly (1 for the exact job)
+``Error Estimate``  X       error estimate of H of the adaptive (tolerance) job (its samples' bounds); 0 if exact
+``Exact Samples``   X       fraction of the pixel's samples computed, not interpolated (1 for the exact job)
 ``IndexOB``         X       ``Object.pass_index`` of the hit object (Blender's Object Index pass)
 =================== ======= ==========================================================================
 
@@ -78,8 +78,8 @@ WORKER_NICE = 10
 #: (when the result was ended) (updated as the render goes).
 status: dict = {}
 
-#: Keys of the job's layers (``JobReport.result``) that fill Error Estimate / Exact Samples once the
-#: adaptive job provides them; absent keys mean an exact job (error 0, every sample exact).
+#: Keys of the job's layers (``JobReport.result``) that fill Error Estimate / Exact Samples (the adaptive
+#: job's); absent keys mean an exact job (error 0, every sample exact).
 _ERROR_KEYS = ("error_estimate", "error")
 _EXACT_KEYS = ("exact_sample", "exact_samples", "exact")
 
