@@ -50,14 +50,15 @@ receiver's result does not depend on the others of its chunk) on a quadtree of i
 5. **Far-field samples** (``sample_share`` > 0): the samples are evaluated by :func:`irradiance` with
    ``tolerance = sample_share * tolerance`` (the core's error-bounded far field: distant clusters of
    polygons projected as bounded proxies, sec. 3.4's "approximate projections"), each with its returned
-   bound ``b`` (largest channel; 0 where the far field was not used). A cell's spot check then sees samples
-   within ``b`` (the largest bound among its nine samples) of their exact values: the exact samples'
-   discrepancy is at most ``d + 2 b`` (a check sample's own error plus the interpolated corners'), and the
-   interpolant of the samples is within ``b`` of the exact samples' interpolant, so the cell's estimate is
-   ``factor * (d + 2 b) + b`` (the anisotropic test likewise), and a sample's own error estimate is its
-   bound. ``sample_share = 0`` (the default) is steps 1–4 bit for bit. It pays where the exact samples
-   are the cost and the far field applies: on the 256² box of 187,588 polygons at 1e-3 of the mean,
-   share 0.2–0.3 halves the time (docs/adaptive.md, "Far-field samples").
+   bound ``b`` (largest channel; only the far field's rounding allowance where it skipped nothing). A
+   cell's spot check then sees samples within ``b`` (the largest bound among its nine samples) of their
+   exact values: the exact samples' discrepancy is at most ``d + 2 b`` (a check sample's own error plus
+   the interpolated corners'), and the interpolant of the samples is within ``b`` of the exact samples'
+   interpolant, so the cell's estimate is ``factor * (d + 2 b) + b`` (the anisotropic test likewise),
+   and a sample's own error estimate is its bound. ``sample_share = 0`` (the default) is steps 1–4 bit
+   for bit. It pays where the exact samples are the cost and the far field applies: on the 256² box of
+   187,588 polygons at 1e-3 of the mean, share 0.2–0.3 halves the time (docs/adaptive.md, "Far-field
+   samples").
 
 Order of work: the forced tests (step 2) need geometry only, so a round follows them down at once, to
 the cells that need a spot check (at whatever depth) and the cells of single pixels; then one core call
@@ -118,7 +119,7 @@ MAX_ASPECT = 2
 #: The share of the tolerance the Blender job and the benchmarks give the samples' far field (``sample_share``,
 #: module docstring step 5): at 1e-3 of the mean on two 64² crops of the 256² Cornell box, 0.2 and 0.3 took
 #: 0.50x and 0.49x the exact samples' time at 187,588 polygons, 0.83x and 0.89x at 9,468, the same at 175,
-#: the measured max error 0.16-0.22 of the tolerance throughout (docs/adaptive.md, "Far-field samples").
+#: the measured max error 0.09-0.22 of the tolerance throughout (docs/adaptive.md, "Far-field samples").
 SAMPLE_SHARE = 0.25
 #: Candidate (cell, light, polygon) triples tested at once by the shadow test (memory bound).
 _PAIR_BATCH = 1 << 18
