@@ -323,15 +323,11 @@ def test_workers_share_one_pool_and_give_the_same_bits(monkeypatch):
 
 
 def smooth_box_image(sub=20, size=SIZE):
-    """``cornell_box(sub)`` (3,064 polygons at 20) with a smooth radiance different on every polygon and a
-    darker patch on the floor (test_far_field's kind: the far field's linear proxies apply), its camera."""
-    box = cornell_box(sub)
-    c = np.array([box.vertices[q].mean(axis=0) for q in box.polygons])
-    d2 = ((c - [0.5, 0.5, 1.0]) ** 2).sum(axis=1)
-    rad = box.emission + box.reflectivity * (0.2 + 0.3 * c[:, 2:3] + 0.4 / (0.4 + d2[:, None]))
-    shadow = (c[:, 2] < 1e-9) & (np.abs(c[:, 0] - 0.35) < 0.12) & (np.abs(c[:, 1] - 0.3) < 0.15)
-    rad[shadow] *= 0.3
-    scene = box.scene(radiance=rad)
+    """test_far_field's smooth-radiance box (3,064 polygons at 20: the far field's linear proxies apply)
+    through its camera."""
+    from test_far_field import smooth_box
+
+    box, scene = smooth_box(sub)
     o, d = camera_rays(box, size)
     p, n, g = image_inputs(scene, o, d, size)
     return scene, p, n, g, exact_image(scene, p, n, g)

@@ -336,8 +336,9 @@ def _wall_receivers(box, seed, n, inside=0, depth=0.0):
     return pts, np.concatenate([nrm, nrm[:inside]])
 
 
-def _smooth_box(sub):
-    """``cornell_box(sub)`` with a smooth radiance, different on every polygon (benchmarks' kind)."""
+def smooth_box(sub):
+    """``cornell_box(sub)`` with a smooth radiance, different on every polygon (benchmarks' kind); also the
+    adaptive pass's far-field samples' scene (test_adaptive.py)."""
     box = cornell_box(sub)
     c = np.array([box.vertices[p].mean(axis=0) for p in box.polygons])
     d2 = ((c - [0.5, 0.5, 1.0]) ** 2).sum(axis=1)
@@ -352,7 +353,7 @@ def test_smooth_radiance_box_takes_linear_proxies_within_the_bound(rel_tol):
     """A closed box with smoothly varying radiance (no face nearly uniform, few equal neighbours): the
     clear nodes go as linear proxies; error <= bound <= tolerance; receivers on the walls (1e-6 off them,
     next to the nodes they see) and 0.2 inside."""
-    box, scene = _smooth_box(40)
+    box, scene = smooth_box(40)
     pts, nrm = _wall_receivers(box, 3, 60, inside=20, depth=0.2)
     h, exact, st = _check(scene, pts, nrm, rel_tol=rel_tol)
     assert st.linear_proxies.sum() > 100
@@ -401,7 +402,7 @@ def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
         return real(te, point, *a)
 
     monkeypatch.setattr(far_field, "_tile_sums", spy)
-    box, scene = _smooth_box(16)
+    box, scene = smooth_box(16)
     pts, nrm = _wall_receivers(box, 5, 40)
     h1, exact, st1 = _check(scene, pts, nrm, rel_tol=1e-4)
     n_plain = sum(calls)
@@ -414,9 +415,9 @@ def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
 
 
 def _hard_smooth_box(kind):
-    """The smooth box of :func:`_smooth_box` made hard for the budgeted proxies: a bright patch among dim
+    """The smooth box of :func:`smooth_box` made hard for the budgeted proxies: a bright patch among dim
     polygons, a steep gradient, a low-contrast chequerboard on the back wall."""
-    box, scene = _smooth_box(40)
+    box, scene = smooth_box(40)
     c = np.array([box.vertices[p].mean(axis=0) for p in box.polygons])
     rad = scene.poly_radiance.copy()
     if kind == "patch":
