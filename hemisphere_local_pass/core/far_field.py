@@ -611,6 +611,10 @@ def _face_ranges(scene, occ):
     return out
 
 
+#: proxy scenes kept per scene (one per set of qualifying faces, the latest first)
+PROXY_KEEP = 2
+
+
 def proxy_scene(scene, occ, tolerance):
     """The scene with every nearly uniform merged face replaced by one polygon, and its radiance bound.
 
@@ -625,8 +629,8 @@ def proxy_scene(scene, occ, tolerance):
     out the other half).
 
     Returns ``(proxy scene, half_range (n_p, 3) or None)`` (``scene`` itself and None when no face
-    qualifies); cached on ``scene`` for the set of qualifying faces. The proxy scene has the same
-    ``double_sided``; its polygons are the kept convex polygons of ``scene`` and the proxies.
+    qualifies); cached on ``scene`` for the set of qualifying faces (the last :data:`PROXY_KEEP` sets). The
+    proxy scene has the same ``double_sided``; its polygons are the kept convex polygons of ``scene`` and the proxies.
     """
     if scene.linear or occ.n == 0:
         return scene, None
@@ -640,9 +644,12 @@ def proxy_scene(scene, occ, tolerance):
     if not ok.any():
         return scene, None
     key = ok.tobytes()
-    cached = getattr(scene, "_proxy", None)
-    if cached is not None and cached[0] is occ and cached[1] == key:
-        return cached[2], cached[3]
+    # the last PROXY_KEEP proxy scenes: the adaptive pass alternates two tolerances (its samples' and its
+    # final samples'), and a proxy scene rebuilt is one re-prepared and re-shipped to the workers
+    kept = [c for c in getattr(scene, "_proxy", ()) if c[0] is occ]
+    for cached in kept:
+        if cached[1] == key:
+            return cached[2], cached[3]
     has = occ.members >= 0
     keep = np.flatnonzero(~(has & ok[np.where(has, occ.members, 0)]))   # polygons not replaced (duplicates too)
     faces = np.flatnonzero(ok)
@@ -659,7 +666,7 @@ def proxy_scene(scene, occ, tolerance):
                            double_sided=scene.double_sided)
     half_range = half[sp.poly_source]
     sp._half_range = half_range
-    scene._proxy = (occ, key, sp, half_range)
+    scene._proxy = ([(occ, key, sp, half_range)] + kept)[:PROXY_KEEP]
     return sp, half_range
 
 

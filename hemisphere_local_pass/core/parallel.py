@@ -651,37 +651,51 @@ def job_pool(workers: int | None = None) -> tuple:
 
 # ------------------------------------------------------------------------------------ the driver
 _PAYLOADS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # key -> (weakrefs of shared, token, blob)
-_SCATTERED: dict = {}  # (id(client), token) -> the dask future of the blob (the latest one)
+_SCATTERED: dict = {}  # (id(client), token) -> the dask future of the blob (of the kept payloads)
 #: held while a call prepares the scene's caches and pickles it: the job runs core calls in threads, and a
 #: scene must not be pickled while another thread adds a cache to it
 PREPARE_LOCK = threading.RLock()
 
 
+_VALUES = (int, float, str, bytes, bool, type(None))
+
+
 def _refs(shared):
+    """A weak reference to each object of ``shared`` (a plain value, e.g. the chunks' ``budget``, is kept as
+    itself: compared by value); None if an object cannot be referenced weakly."""
     items = shared if isinstance(shared, tuple) else (shared,)
     try:
-        return tuple(weakref.ref(x) for x in items)
+        return tuple(("value", x) if isinstance(x, _VALUES) else weakref.ref(x) for x in items)
     except TypeError:
         return None
 
 
+def _same(ref, x) -> bool:
+    return ref == ("value", x) if isinstance(ref, tuple) else ref() is x
+
+
 def _payload(key, shared) -> tuple:
     """``(token, blob)`` of ``shared``, pickled once while ``key`` and the objects of ``shared`` live (a
-    tuple is compared item by item); the parent keeps one such pickle (the latest)."""
+    tuple is compared item by item); the parent keeps the latest :data:`SHARED_KEEP` such pickles, as the
+    workers keep that many shared objects (calls alternating two scenes ship each once)."""
     with PREPARE_LOCK:
         entry = _PAYLOADS.get(key)
         items = shared if isinstance(shared, tuple) else (shared,)
         if entry is not None and entry[0] is not None and len(entry[0]) == len(items) and all(
-                r() is x for r, x in zip(entry[0], items)):
+                _same(r, x) for r, x in zip(entry[0], items)):
             return entry[1], entry[2]
         blob = pickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)
         token = uuid.uuid4().hex
-        _PAYLOADS.clear()
-        _SCATTERED.clear()
+        _PAYLOADS.pop(key, None)
+        while len(_PAYLOADS) >= SHARED_KEEP:  # the oldest first (insertion order)
+            _PAYLOADS.pop(next(iter(_PAYLOADS.keys())))
         try:
             _PAYLOADS[key] = (_refs(shared), token, blob)
         except TypeError:  # not weak-referenceable: pickled on every call
             pass
+        live = {entry[1] for entry in _PAYLOADS.values()}  # the scattered blobs of dropped payloads go too
+        for k in [k for k in _SCATTERED if k[1] not in live]:
+            del _SCATTERED[k]
         return token, blob
 
 

@@ -387,6 +387,32 @@ def test_float32_convex_cores_are_no_proxies():
 
 
 
+def test_proxy_scenes_of_two_tolerances_are_both_kept():
+    """The adaptive pass alternates two tolerances (its samples' and its final samples'): the proxy scenes of
+    both stay cached (the same objects, so they are prepared and shipped to workers once), at most
+    ``PROXY_KEEP`` of them."""
+    from hemisphere_local_pass.core.culling import build_occluders
+    from hemisphere_local_pass.core.far_field import PROXY_KEEP, proxy_scene
+
+    box = cornell_box(6)
+    names = np.array(box.names)
+    rng = np.random.default_rng(3)
+    rad = box.emission.copy()
+    for k, part in enumerate(dict.fromkeys(box.names)):      # part k varies by 10^-k within its faces
+        m = names == part
+        rad[m] += 0.3 + 10.0 ** -k * rng.uniform(0.0, 1.0, (m.sum(), 1))
+    sc = Scene.from_polygons(box.vertices, box.polygons, rad)
+    occ = build_occluders(sc)
+    tols = [np.full(3, t) for t in (1e-4, 1e-3, 1e-2)]
+    first = [proxy_scene(sc, occ, t)[0] for t in tols]
+    assert len({sp.n_polygons for sp in first}) == 3            # three different sets of proxies
+    assert PROXY_KEEP == 2 and len(sc._proxy) == 2
+    assert proxy_scene(sc, occ, tols[2])[0] is first[2] and proxy_scene(sc, occ, tols[1])[0] is first[1]
+    for _ in range(2):                                          # alternating: no rebuild
+        assert proxy_scene(sc, occ, tols[2])[0] is first[2] and proxy_scene(sc, occ, tols[1])[0] is first[1]
+    assert proxy_scene(sc, occ, tols[0])[0] is not first[0]     # the oldest was dropped
+
+
 def test_plain_tiles_take_the_exact_paths_sums_within_the_bound(monkeypatch):
     """Clear tiles that skip no edge go through the exact path's own tile sums (:func:`far_field._tile_sums`,
     cheaper per edge) unless their welded list is much shorter: with and without that path (``PLAIN_RATIO``

@@ -140,6 +140,22 @@ def test_a_kept_pool_serves_many_calls_and_gets_the_scene_once(scenes, receivers
     assert not (_children() & set(pool.pids))
 
 
+def test_two_scenes_alternating_on_a_kept_pool_are_pickled_once_each(scenes, receivers, serial, monkeypatch):
+    """The adaptive pass alternates two scenes (its samples' and its final samples' proxy scenes): the parent
+    keeps both pickles (as the workers keep SHARED_KEEP scenes), so neither is pickled again."""
+    tokens = []  # a pickle made again gets a new token
+    real = parallel._payload
+    monkeypatch.setattr(parallel, "_payload", lambda *a: tokens.append(real(*a)[0]) or real(*a))
+    p, n, _ = receivers
+    with WorkerPool(2) as pool:
+        for _ in range(3):
+            for kind in ("constant", "linear"):
+                h = irradiance(scenes[kind], p, n, budget=BUDGET, executor=pool)
+                _same_bits((h,), (serial[kind][1],))
+    assert len(tokens) == 6 and len(set(tokens)) == 2, tokens
+    assert not (_children() & set(pool.pids))
+
+
 def test_default_is_every_core_and_small_jobs_stay_here(scenes, receivers, serial):
     assert parallel.default_workers() == len(os.sched_getaffinity(0))
     p, n, _ = receivers
