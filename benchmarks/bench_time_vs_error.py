@@ -7,7 +7,8 @@ The 256² Cornell box (``benchmarks/bench_cycles.py``'s camera with its sub-pixe
   image of ``core.irradiance``), with ``workers`` = all cores when the core accepts it;
 * **adaptive**: ``core.adaptive_irradiance`` at tolerances 1e-2, 1e-3, 1e-4 of the image's mean
   irradiance (absolute per channel, the core's own units), its samples from the error-bounded far field
-  with ``--sample-share`` of the tolerance (default ``core.adaptive.SAMPLE_SHARE``, the Blender job's);
+  with ``--sample-share`` of the tolerance (default ``core.adaptive.SAMPLE_SHARE``, the Blender job's), the
+  final samples (no interpolation uses them) with ``--final-share`` (default ``core.adaptive.FINAL_SHARE``);
 * **Cycles**: ``bench_cycles.py``'s local-pass-equivalent recipe (one material per polygon, max bounces
   0, no denoising, 2 threads, Blender's default light sampling) at increasing spp, run in a ``bpy``
   Python (``--bpy``, default ``.venv/bpy-4.2/bin/python``) as a subprocess of this run.
@@ -46,7 +47,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import CACHE, ROOT, log, luminance, machine, solved_radiance, with_kept_sections  # noqa: E402
 
-from hemisphere_local_pass.core.adaptive import SAMPLE_SHARE  # noqa: E402
+from hemisphere_local_pass.core.adaptive import FINAL_SHARE, SAMPLE_SHARE  # noqa: E402
 from hemisphere_local_pass.scenes import PAPER_SETTINGS, cornell_box  # noqa: E402
 
 DOCS = ROOT / "docs"
@@ -75,12 +76,13 @@ def prepare(key, size):
     return box, lum, scene, (p, n, g), rho, emit, time.perf_counter() - t
 
 
-def run_adaptive(scene, inputs, tol, workers, sample_share=0.0):
+def run_adaptive(scene, inputs, tol, workers, sample_share=0.0, final_share=None):
     from hemisphere_local_pass.core import adaptive_irradiance
 
     p, n, g = inputs
     t = time.perf_counter()
-    h, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=workers, sample_share=sample_share)
+    h, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, workers=workers, sample_share=sample_share,
+                                final_share=final_share)
     return h, st, time.perf_counter() - t
 
 
@@ -151,6 +153,9 @@ def main(argv=None):
     ap.add_argument("--sample-share", type=float, default=SAMPLE_SHARE,
                     help="the adaptive samples' far-field share of the tolerance (core.adaptive.SAMPLE_SHARE, the "
                          "Blender job's; 0: exact samples)")
+    ap.add_argument("--final-share", type=float, default=FINAL_SHARE,
+                    help="the final samples' share of the tolerance (core.adaptive.FINAL_SHARE, the Blender job's; "
+                         "core/adaptive.py step 6)")
     ap.add_argument("--out", default=str(DOCS / "bench_time_vs_error"))
     ap.add_argument("--replot", action="store_true", help="only redraw OUT.png from OUT.json (no run)")
     args = ap.parse_args(argv)
@@ -161,10 +166,10 @@ def main(argv=None):
 
     command = ("OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_time_vs_error.py "
                f"--scenes {args.scenes} --size {args.size} --rel {args.rel} --spp {args.spp} "
-               f"--sample-share {args.sample_share:g}")
+               f"--sample-share {args.sample_share:g} --final-share {args.final_share:g}")
     rels = [float(r) for r in args.rel.split(",")]
     report = {"machine": machine(), "command": command, "size": args.size, "workers": args.workers,
-              "sample_share": args.sample_share, "scenes": []}
+              "sample_share": args.sample_share, "final_share": args.final_share, "scenes": []}
     for key in args.scenes.split(","):
         box, lum, scene, inputs, rho, emit, t_prep = prepare(key, args.size)
         log(f"[{key}] {box.n_polygons} polygons: preparation {t_prep:.1f} s")
@@ -200,9 +205,11 @@ def main(argv=None):
                 probe, _, _ = run_adaptive(scene, inputs, 0.05 * float(np.pi * np.abs(lum).mean()), args.workers)
                 mean_h = float(probe[hit].mean())
                 entry["mean_from_probe"] = True
-            h, st, sec = run_adaptive(scene, inputs, rel * mean_h, args.workers, args.sample_share)
+            h, st, sec = run_adaptive(scene, inputs, rel * mean_h, args.workers, args.sample_share,
+                                      args.final_share)
             row = {"method": f"adaptive {rel:g}", "rel": rel, "seconds": sec, "exact_points": st.exact_points,
                    "estimate": st.error_estimate / mean_h, "sample_bound": st.sample_bound / mean_h,
+                   "final_points": st.final_points,
                    "forced_surface": st.forced_surface, "forced_shadow": st.forced_shadow, "rejected": st.rejected,
                    "accepted": st.accepted}
             if exact_h is not None:
@@ -240,8 +247,9 @@ def write(report, out):
           "metric); *H max* = largest per-channel |ΔH| over the mean H (the adaptive tolerance's metric). "
           "Seconds exclude preparation (scene, first pass from cache, camera rays, BVH), given per scene.\n",
           f"Adaptive samples: far field with {report.get('sample_share', 0.0):g} of the tolerance "
-          "(`sample_share`, core/adaptive.py step 5; 0: exact samples); *exact evaluations* of an adaptive row "
-          "count its samples.\n"]
+          f"(`sample_share`, core/adaptive.py step 5; 0: exact samples), the final samples with "
+          f"{report.get('final_share', report.get('sample_share', 0.0)):g} (`final_share`, step 6); "
+          "*exact evaluations* of an adaptive row count its samples.\n"]
     for e in report["scenes"]:
         md.append(f"## {e['polygons']} polygons (preparation {e['preparation_seconds']:.1f} s)\n")
         md.append("| method | seconds | exact evaluations | RMS error | max error | H max / mean H | "

@@ -117,7 +117,7 @@ def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, sta
     only). Returns ``(H, exact, error, exact points,
     absolute tolerance, largest error estimate)``."""
     from ..core import irradiance
-    from ..core.adaptive import DEFAULT_COARSE, SAMPLE_SHARE, adaptive_irradiance
+    from ..core.adaptive import DEFAULT_COARSE, FINAL_SHARE, SAMPLE_SHARE, adaptive_irradiance
 
     h, w = shape
     n_samples = len(hit)
@@ -144,10 +144,11 @@ def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, sta
             state["done"] = base + d
 
         # the samples from the far field with SAMPLE_SHARE of the tolerance (core.adaptive step 5: 0.5x
-        # the time at 187,588 polygons, no change at 175), their bounds in the error_estimate layer
+        # the time at 187,588 polygons, no change at 175), the final ones (no interpolation uses them, step 6)
+        # with FINAL_SHARE; their bounds in the error_estimate layer
         hj, st = adaptive_irradiance(core_scene, p_all[:, :, j], n_all[:, :, j], g_all[:, :, j],
                                      tolerance=absolute, progress=prog, cancel=cancel, sample_share=SAMPLE_SHARE,
-                                     **on)
+                                     final_share=FINAL_SHARE, **on)
         out_h[:, :, j], exact[:, :, j], err[:, :, j] = hj, st.exact_mask, st.pixel_error
         base += st.exact_points
     sel = hit.reshape(h, w, k2)

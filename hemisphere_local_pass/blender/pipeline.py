@@ -123,7 +123,8 @@ def local_pass_steps(
         tolerance: pixels mode: 0 (default) evaluates every pixel exactly; > 0 runs the adaptive pass
             (``core.adaptive_irradiance``) with an error tolerance on H *relative to the image's mean
             irradiance* (estimated from exact values on a 16-pixel grid), e.g. 1e-3, its samples from the
-            far field with ``core.adaptive.SAMPLE_SHARE`` of the tolerance; the EXR's ``error_estimate``
+            far field with ``core.adaptive.SAMPLE_SHARE`` of the tolerance (the final ones, which no
+            interpolation uses, with ``FINAL_SHARE``); the EXR's ``error_estimate``
             and ``exact_sample`` layers show the estimate (the samples' bounds) and where it interpolated. The adaptive
             pass neither checkpoints nor computes the ``form_factor_sum`` layer (NaN there); it yields
             a step every ``adaptive_pixels.POLL_SECONDS`` while its core calls run in a thread.

@@ -55,10 +55,19 @@ receiver's result does not depend on the others of its chunk) on a quadtree of i
    exact values: the exact samples' discrepancy is at most ``d + 2 b`` (a check sample's own error plus
    the interpolated corners'), and the interpolant of the samples is within ``b`` of the exact samples'
    interpolant, so the cell's estimate is ``factor * (d + 2 b) + b`` (the anisotropic test likewise),
-   and a sample's own error estimate is its bound. ``sample_share = 0`` (the default) is steps 1–4 bit
-   for bit. It pays where the exact samples are the cost and the far field applies: on the 256² box of
-   187,588 polygons at 1e-3 of the mean, share 0.2–0.3 halves the time (docs/adaptive.md, "Far-field
-   samples").
+   and a sample's own error estimate is its bound. ``sample_share = 0`` (the default, with ``final_share``
+   None or 0) is steps 1–4 bit for bit. It pays where the exact samples are the cost and the far field
+   applies: on the 256² box of 187,588 polygons at 1e-3 of the mean, share 0.2–0.3 halves the time
+   (docs/adaptive.md, "Far-field samples").
+6. **Final samples** (``final_share``, default ``sample_share``): most samples of a fine image are *final*:
+   pixels of cells refined to single pixels (surface breaks, light shadows, rejected cells at the last
+   level) that no interpolation ever uses. Only the samples of cells that interpolate (corners and spot
+   checks of a cell with a pixel beyond its nine samples) enter an estimate, where a bound ``b`` counts
+   ``2 factor + 1`` times; a final sample's bound is its pixel's whole error, counted once. So in each
+   round the pixels outside every such cell (later cells lie inside this round's, so they stay outside)
+   are evaluated with ``tolerance = final_share * tolerance``, the others with ``sample_share``. The far
+   field is cheaper with more tolerance (at 187,588 polygons ~10 ms per receiver at 0.9 of 1e-3 of the
+   mean, ~14 ms at 0.05), and a smaller ``sample_share`` lets more cells be accepted.
 
 Order of work: the forced tests (step 2) need geometry only, so a round follows them down at once, to
 the cells that need a spot check (at whatever depth) and the cells of single pixels; then one core call
@@ -99,7 +108,7 @@ from .parallel import _resolve_workers, job_pool
 from .raycast import build_bvh
 from .scene import Scene
 
-__all__ = ["AdaptiveStats", "DEFAULT_COARSE", "LIGHT_RATIO", "MAX_ASPECT", "NORMAL_JUMP", "SAMPLE_SHARE",
+__all__ = ["AdaptiveStats", "DEFAULT_COARSE", "FINAL_SHARE", "LIGHT_RATIO", "MAX_ASPECT", "NORMAL_JUMP", "SAMPLE_SHARE",
            "adaptive_irradiance", "light_groups"]
 
 #: Default side (pixels) of the coarsest cells.
@@ -116,11 +125,14 @@ INNER_FACTOR = 2.0
 EDGE_FACTOR = 4.0
 #: Anisotropic splits (module docstring, step 4) make cells at most this many times longer than wide.
 MAX_ASPECT = 2
-#: The share of the tolerance the Blender job and the benchmarks give the samples' far field (``sample_share``,
-#: module docstring step 5): at 1e-3 of the mean on two 64² crops of the 256² Cornell box, 0.2 and 0.3 took
-#: 0.50x and 0.49x the exact samples' time at 187,588 polygons, 0.83x and 0.89x at 9,468, the same at 175,
-#: the measured max error 0.09-0.22 of the tolerance throughout (docs/adaptive.md, "Far-field samples").
-SAMPLE_SHARE = 0.25
+#: The shares of the tolerance the Blender job and the benchmarks give the samples' far field (``sample_share``,
+#: module docstring step 5) and the final samples' (``final_share``, step 6): on two 64² crops of the 256²
+#: Cornell box of 187,588 polygons, 0.1 / 0.9 took 0.90-0.96x (1e-3 of the mean) and 0.76-0.81x (1e-2) the time
+#: of 0.25 for all samples (86.9 % / 41.4 % of the pixels sampled instead of 94.7 % / 58.2 %), 0.98x at 9,468
+#: polygons, 1.1x at 175 (one more core call); the measured max error 0.17 / 0.41 of the tolerance
+#: (docs/adaptive.md, "Final samples").
+SAMPLE_SHARE = 0.1
+FINAL_SHARE = 0.9
 #: Candidate (cell, light, polygon) triples tested at once by the shadow test (memory bound).
 _PAIR_BATCH = 1 << 18
 
@@ -137,6 +149,7 @@ class AdaptiveStats:
             exact: always with ``sample_share`` 0), 0 at missed pixels.
         exact_mask: (h, w) bool, True where the pixel was a sample (evaluated by the core, not interpolated).
         sample_bound: largest far-field bound of a sample (units of H, per channel); 0 with exact samples.
+        final_points: samples evaluated as final ones, with ``final_share`` (0 when it equals ``sample_share``).
         hit_pixels: pixels whose camera ray hit a polygon.
         forced_surface: cells split because they cross a surface discontinuity (miss, plane, normal).
         forced_shadow: cells split because a light may be partly hidden from them.
@@ -156,6 +169,7 @@ class AdaptiveStats:
     accepted: int = 0
     lights: int = 0
     sample_bound: float = 0.0
+    final_points: int = 0
 
     @property
     def exact_fraction(self) -> float:
@@ -417,6 +431,7 @@ def adaptive_irradiance(
     light_ratio: float = LIGHT_RATIO,
     anisotropic: bool = True,
     sample_share: float = 0.0,
+    final_share: float | None = None,
 ):
     """Irradiance image with exact evaluations only where interpolation would err by more than ``tolerance``.
 
@@ -442,6 +457,9 @@ def adaptive_irradiance(
             evaluated by :func:`irradiance` with ``tolerance = sample_share * tolerance`` (the error-bounded
             far field) and their returned bounds enter every estimate (step 5 of the module docstring).
             0 (the default): exact samples. Pays on large scenes (:data:`SAMPLE_SHARE`: the Blender job's).
+        final_share: in [0, 1): the share of ``tolerance`` for the *final* samples, those no interpolation
+            will ever use (step 6 of the module docstring): their bound is their pixel's whole error.
+            None (the default): ``sample_share``, i.e. one tolerance for every sample.
 
     Returns:
         ``(H, stats)``: H (h, w, 3) float64 irradiance (0 where missed), stats :class:`AdaptiveStats`.
@@ -455,6 +473,9 @@ def adaptive_irradiance(
     share = float(sample_share)
     if not 0.0 <= share < 1.0:
         raise ValueError(f"sample_share must be in [0, 1), got {sample_share!r}")
+    final = share if final_share is None else float(final_share)
+    if not 0.0 <= final < 1.0:
+        raise ValueError(f"final_share must be in [0, 1), got {final_share!r}")
     if (g >= scene.n_input).any():
         raise ValueError(f"polygons holds index {int(g.max())}, the scene has {scene.n_input} input polygons")
     # one pool of worker processes for the whole pass (the caller's kept pool in a PoolKeeper scope),
@@ -471,14 +492,14 @@ def adaptive_irradiance(
 
     try:
         return _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, cancel, int(coarse),
-                              light_ratio, anisotropic, share)
+                              light_ratio, anisotropic, share, final)
     finally:
         if kept and kept[0][1]:  # a pool of this pass (a cancel has killed it already: run_chunks does)
             kept[0][0].shutdown(wait=True, cancel_futures=True)
 
 
 def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, cancel, coarse, light_ratio,
-                   anisotropic, share):
+                   anisotropic, share, final_share):
     """The body of :func:`adaptive_irradiance` (arguments checked; ``executor_of_pass()``: the executor of
     the core calls, or None)."""
     h, w = g.shape
@@ -489,17 +510,27 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
     err = np.zeros((h, w))
     bound = np.zeros((h, w))  # the samples' own error bounds (largest channel): 0 where exact
     stats = AdaptiveStats(0, 0.0, err, exact, hit_pixels=n_valid)
-    sample_tol = share * tol
 
-    def evaluate(ys, xs):
-        """Evaluate the not yet exact hit pixels among ``(ys, xs)`` (bitwise the all-exact values)."""
+    deferred = np.zeros((h, w), dtype=bool)  # final samples (step 6), evaluated in one call after the rounds
+
+    def evaluate(ys, xs, used=None, sample_tol=share * tol):
+        """Evaluate the hit pixels among ``(ys, xs)`` not evaluated yet with ``sample_tol`` (0: exactly, bitwise
+        the all-exact values); given ``used (h, w)`` bool (the pixels some interpolation may use), defer the
+        others to the call after the rounds: they are final samples (step 6)."""
         flat = np.unique(ys * w + xs)
         flat = flat[valid.reshape(-1)[flat] & ~exact.reshape(-1)[flat]]
-        if not len(flat):
+        yy, xx = np.divmod(flat, w)
+        if used is not None:
+            u = used[yy, xx]
+            deferred[yy[~u], xx[~u]] = True
+            # a used pixel is never a deferred one (later cells lie inside this round's interpolating cells,
+            # which no deferred pixel meets); were it one, it is evaluated now, before anything reads it
+            deferred[yy[u], xx[u]] = False
+            yy, xx = yy[u], xx[u]
+        if not len(yy):
             return
         if cancel is not None and cancel():
             raise Cancelled(f"cancelled after {stats.exact_points} exact points")
-        yy, xx = np.divmod(flat, w)
         before = stats.exact_points
         # progress after every chunk of the call (a round's call can hold most of the image's evaluations)
         chunk_progress = None if progress is None else (lambda done, _total: progress(before + done, n_valid))
@@ -512,7 +543,7 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
             H[yy, xx] = irradiance(scene, p[yy, xx], n[yy, xx], cancel=cancel, workers=workers,
                                    executor=executor_of_pass(), progress=chunk_progress)
         exact[yy, xx] = True
-        stats.exact_points += len(flat)
+        stats.exact_points += len(yy)
 
     if tol == 0.0 or h * w == 0:
         ys, xs = np.nonzero(valid)
@@ -600,7 +631,18 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
         cx = np.stack([mx, mx, x0, x1, mx], axis=1)                    # (c, 5) spot-check pixels
         cy = np.stack([y0, y1, my, my, my], axis=1)
         ca, cb, cc, cd = (np.concatenate(a) for a in zip(*corners, strict=True))
-        evaluate(np.concatenate([cc, cc, cd, cd, cy.reshape(-1)]), np.concatenate([ca, cb, ca, cb, cx.reshape(-1)]))
+        # step 6: a pixel outside every ready cell that interpolates (one with a pixel beyond its nine samples)
+        # is never used by an interpolation, in this round or later (later cells lie inside this round's
+        # ready cells): its sample is final, deferred to one call with final_share after the rounds. The
+        # ready cells that do not interpolate need no spot check then (every pixel of theirs is a sample)
+        used = None
+        if final_share != share:
+            big = (x1 - x0 > 2) | (y1 - y0 > 2)
+            used = _covered(h, w, x0[big], x1[big], y0[big], y1[big])
+        evaluate(np.concatenate([cc, cc, cd, cd, cy.reshape(-1)]), np.concatenate([ca, cb, ca, cb, cx.reshape(-1)]),
+                 used)
+        if used is not None:
+            x0, x1, y0, y1, depth, mx, my, cx, cy = (a[big] for a in (x0, x1, y0, y1, depth, mx, my, cx, cy))
         if not len(x0):
             break
         # 3. the spot checks
@@ -647,6 +689,11 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
         s = np.flatnonzero(~good)
         pending = _children(x0, x1, y0, y1, depth, s, want_x[s], want_y[s], True)
 
+    if deferred.any():  # the final samples (step 6), in one call
+        ys, xs = np.nonzero(deferred)
+        deferred[:] = False
+        stats.final_points = len(ys)
+        evaluate(ys, xs, sample_tol=final_share * tol)
     # --- interpolate the accepted cells over their four sub-cells ----------------------------------
     # shallower cells first: where a cell's edge borders finer cells, the finer interpolation is the one kept
     if fills:
@@ -685,6 +732,17 @@ def _children(x0, x1, y0, y1, depth, s, want_x, want_y, clear):
         kids[4].append(depth[s][m] + 1)
     out = [np.concatenate(k) for k in kids]
     return out + [np.full(len(out[0]), clear, dtype=bool)]
+
+
+def _covered(h, w, x0, x1, y0, y1):
+    """(h, w) bool: True on every pixel of the rectangles ``[x0, x1] × [y0, y1]`` (inclusive), by a 2-D
+    difference table (O(h w + rectangles))."""
+    d = np.zeros((h + 1, w + 1), dtype=np.int64)
+    np.add.at(d, (y0, x0), 1)
+    np.add.at(d, (y0, x1 + 1), -1)
+    np.add.at(d, (y1 + 1, x0), -1)
+    np.add.at(d, (y1 + 1, x1 + 1), 1)
+    return d.cumsum(axis=0).cumsum(axis=1)[:h, :w] > 0
 
 
 def _touches_break(tx, ty, x0, x1, y0, y1, w, h):

@@ -360,23 +360,55 @@ def test_far_field_samples_stay_within_the_tolerance_and_their_bounds():
     assert np.array_equal(exact_samples[st0.exact_mask], ref[st0.exact_mask])
 
 
+@pytest.mark.parametrize("shares", [(0.25, None), (0.05, 0.9)], ids=["share", "final"])
 @pytest.mark.parametrize("name", list(SCENES))
-def test_far_field_samples_on_every_test_scene(name):
-    """The Cornell box and the scenes built to break interpolation, with far-field samples: the image within
-    the tolerance, each sample within its bound."""
+def test_far_field_samples_on_every_test_scene(name, shares):
+    """The Cornell box and the scenes built to break interpolation, with far-field samples (and final samples
+    with 0.9 of the tolerance, step 6): the image within the tolerance, each sample within its bound."""
     scene, p, n, g, ref = prepared(name)
+    share, final = shares
     for rel in (1e-2, 1e-3):
         tol = rel * ref[g >= 0].mean()
-        img, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, sample_share=0.25)
+        img, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, sample_share=share, final_share=final)
         err = np.abs(img - ref).max(axis=2)
         assert err.max() <= tol and st.error_estimate <= tol, (name, rel, err.max() / tol)
         assert (err[st.exact_mask] <= st.pixel_error[st.exact_mask]).all()
+        assert (st.final_points > 0) == (final is not None), st.final_points
+
+
+def test_final_samples_take_their_share_and_interpolate_only_from_the_others():
+    """Step 6 on the smooth box: the final samples (pixels no interpolation uses) get 0.9 of the tolerance,
+    the others 0.05. The image within the tolerance, each sample within its bound, some bound above the
+    smaller share (the final share was used) and pixels still interpolated; ``final_share`` None or equal to
+    ``sample_share`` is one tolerance for all."""
+    from hemisphere_local_pass.core.far_field import ROUNDING
+
+    scene, p, n, g, ref = smooth_box_image()
+    hit = g >= 0
+    tol = 1e-2 * ref[hit].mean()
+    img, st = adaptive_irradiance(scene, p, n, g, tolerance=tol, sample_share=0.05, final_share=0.9)
+    err = np.abs(img - ref).max(axis=2)
+    m = st.exact_mask
+    assert err.max() <= tol and st.error_estimate <= tol, (err.max() / tol, st.error_estimate / tol)
+    assert (err[m] <= st.pixel_error[m]).all(), (err - st.pixel_error)[m].max()
+    allowance = 4 * ROUNDING * ref.max()
+    assert st.sample_bound <= 0.9 * tol * (1 + 1e-9) + allowance
+    assert st.sample_bound > 0.05 * tol * (1 + 1e-9) + allowance and 0 < st.final_points < st.exact_points, st
+    assert (hit & ~m).any()
+    same, st_same = adaptive_irradiance(scene, p, n, g, tolerance=tol, sample_share=0.25, final_share=0.25)
+    default, st_default = adaptive_irradiance(scene, p, n, g, tolerance=tol, sample_share=0.25)
+    assert np.array_equal(same, default) and np.array_equal(st_same.pixel_error, st_default.pixel_error)
+    assert st_same.final_points == 0 == st_default.final_points
 
 
 def test_far_field_samples_tolerance_zero_and_bad_share():
     scene, p, n, g, ref = prepared("thin occluders")
     img, st = adaptive_irradiance(scene, p, n, g, tolerance=0.0, sample_share=0.5)
     assert np.array_equal(img, ref) and st.error_estimate == 0.0 and st.sample_bound == 0.0
+    img, st = adaptive_irradiance(scene, p, n, g, tolerance=0.0, sample_share=0.1, final_share=0.9)
+    assert np.array_equal(img, ref) and st.error_estimate == 0.0 and st.sample_bound == 0.0
     for bad in (-0.1, 1.0, float("nan")):
         with pytest.raises(ValueError, match="sample_share"):
             adaptive_irradiance(scene, p, n, g, tolerance=0.1, sample_share=bad)
+        with pytest.raises(ValueError, match="final_share"):
+            adaptive_irradiance(scene, p, n, g, tolerance=0.1, sample_share=0.1, final_share=bad)
