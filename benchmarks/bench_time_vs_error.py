@@ -166,7 +166,10 @@ def main(argv=None):
 
     command = ("OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_time_vs_error.py "
                f"--scenes {args.scenes} --size {args.size} --rel {args.rel} --spp {args.spp} "
-               f"--sample-share {args.sample_share:g} --final-share {args.final_share:g}")
+               f"--sample-share {args.sample_share:g} --final-share {args.final_share:g}"
+               + (f" --exact-time {args.exact_time}" if args.exact_time else "")
+               + ("" if args.serial_exact else " --no-serial-exact")
+               + ("" if Path(args.out) == DOCS / "bench_time_vs_error" else f" --out {args.out}"))
     rels = [float(r) for r in args.rel.split(",")]
     report = {"machine": machine(), "command": command, "size": args.size, "workers": args.workers,
               "sample_share": args.sample_share, "final_share": args.final_share, "scenes": []}
