@@ -376,7 +376,7 @@ def test_far_field_samples_on_every_test_scene(name, shares):
         assert (st.final_points > 0) == (final is not None), st.final_points
 
 
-def test_final_samples_take_their_share_and_interpolate_only_from_the_others():
+def test_final_samples_take_their_share():
     """Step 6 on the smooth box: the final samples (pixels no interpolation uses) get 0.9 of the tolerance,
     the others 0.05. The image within the tolerance, each sample within its bound, some bound above the
     smaller share (the final share was used) and pixels still interpolated; ``final_share`` None or equal to
