@@ -45,16 +45,15 @@ def reference(args, box, scene, p, n, g):
         data = np.load(path)
         return data["H"], float(data["mean"])
     ref = np.zeros(g.shape + (3,))
-    mask = np.zeros(g.shape, dtype=bool)
-    mask[::4, ::4] = True
-    for ys, xs in CROPS:
-        mask[ys, xs] = True
-    mask &= g >= 0
-    t = time.perf_counter()
-    ref[mask] = irradiance(scene, p[mask], n[mask], workers=args.workers)
     grid = np.zeros(g.shape, dtype=bool)
     grid[::4, ::4] = True
-    mean = float(ref[grid & (g >= 0)].mean())
+    grid &= g >= 0
+    mask = grid.copy()
+    for ys, xs in CROPS:
+        mask[ys, xs] = g[ys, xs] >= 0
+    t = time.perf_counter()
+    ref[mask] = irradiance(scene, p[mask], n[mask], workers=args.workers)
+    mean = float(ref[grid].mean())
     print(f"[setup] exact reference on the crops and every 4th pixel: {mask.sum()} points, "
           f"{time.perf_counter() - t:.1f} s", file=sys.stderr)
     CACHE.mkdir(parents=True, exist_ok=True)

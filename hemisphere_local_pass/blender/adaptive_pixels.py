@@ -143,9 +143,9 @@ def _adaptive_work(core_scene, pts, normals, src, hit, shape, k2, tolerance, sta
         def prog(d, _t, base=base):
             state["done"] = base + d
 
-        # the samples from the far field with SAMPLE_SHARE of the tolerance (core.adaptive step 5: 0.5x
-        # the time at 187,588 polygons, no change at 175), the final ones (no interpolation uses them, step 6)
-        # with FINAL_SHARE; their bounds in the error_estimate layer
+        # the samples from the far field with SAMPLE_SHARE of the tolerance, the final ones (no interpolation
+        # uses them) with FINAL_SHARE (core.adaptive steps 5-6; figures in docs/adaptive.md); their bounds in
+        # the error_estimate layer
         hj, st = adaptive_irradiance(core_scene, p_all[:, :, j], n_all[:, :, j], g_all[:, :, j],
                                      tolerance=absolute, progress=prog, cancel=cancel, sample_share=SAMPLE_SHARE,
                                      final_share=FINAL_SHARE, **on)

@@ -691,7 +691,6 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
 
     if deferred.any():  # the final samples (step 6), in one call
         ys, xs = np.nonzero(deferred)
-        deferred[:] = False
         stats.final_points = len(ys)
         evaluate(ys, xs, sample_tol=final_share * tol)
     # --- interpolate the accepted cells over their four sub-cells ----------------------------------
