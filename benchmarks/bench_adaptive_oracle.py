@@ -13,7 +13,10 @@ so they cost no exact evaluations and their counts do not depend on the machine'
   no shadow test, no spot-check cost beyond the interpolant's own samples). ``floor`` accepts every
   uniform cell (only the surface breaks cost); ``bilin4`` the corners' bilinear interpolant; ``bilin9``
   the bilinear interpolant over the nine samples (the adaptive pass's); ``biquad9`` the tensor-product
-  quadratic through them.
+  quadratic through them; with ``--world`` also ``wbilin4`` / ``wbilin9``, the same bilinear interpolants
+  with each cell's coordinates taken on the surface (the pixel's hit point inside the quad of its corners'
+  hit points), which reproduce a function affine on the plane exactly where image-space weights miss it
+  under perspective.
 
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_oracle.py --scene small --size 256
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_oracle.py --scene large --size 128
@@ -119,6 +122,73 @@ def _interp(H, x0, x1, y0, y1, kind):
     return val, samples
 
 
+def _world_st(P, a, b, c, d, normal, iterations=50):
+    """Bilinear coordinates ``(s, t)`` (each ``(..., 1)``) of points ``P (..., 3)`` in the planar quad
+    ``a (0, 0), b (1, 0), c (1, 1), d (0, 1)`` (world points of one plane, unit ``normal``): the inverse of
+    ``x(s, t) = a + s (b - a) + t (d - a) + s t (a - b + c - d)`` in the plane's two dominant axes, by Newton
+    from the centre (the quad of a pixel rectangle seen in perspective is convex, the map one to one)."""
+    i, j = [k for k in range(3) if k != int(np.argmax(np.abs(normal)))]
+    A = np.stack([a[[i, j]], b[[i, j]], c[[i, j]], d[[i, j]]])
+    X = P[..., [i, j]]
+    e, f, g = A[1] - A[0], A[3] - A[0], A[0] - A[1] + A[2] - A[3]
+    s = np.full(X.shape[:-1], 0.5)
+    t = s.copy()
+    for _ in range(iterations):
+        r = A[0] + s[..., None] * e + t[..., None] * f + (s * t)[..., None] * g - X
+        j11, j12 = e[0] + t * g[0], f[0] + s * g[0]
+        j21, j22 = e[1] + t * g[1], f[1] + s * g[1]
+        det = j11 * j22 - j12 * j21
+        ds = (j22 * r[..., 0] - j12 * r[..., 1]) / det
+        dt = (j11 * r[..., 1] - j21 * r[..., 0]) / det
+        s, t = s - ds, t - dt
+        if max(np.abs(ds).max(), np.abs(dt).max()) < 1e-14:
+            break
+    return s[..., None], t[..., None]
+
+
+def _world_interp(H, p, n, x0, x1, y0, y1, kind):
+    """``_interp``'s ``bilin4`` / ``bilin9`` (``kind`` ``wbilin4`` / ``wbilin9``) with each (sub-)cell's
+    bilinear coordinates taken on the surface rather than in the image: the pixel's hit point ``p`` mapped
+    back into the quad of its corners' hit points, so that a function affine in world coordinates on the
+    plane is reproduced exactly (image-space weights miss it under perspective)."""
+    mx, my = (x0 + x1) // 2, (y0 + y1) // 2
+    if kind == "wbilin4":
+        blocks = [((x0, x1), (y0, y1))]
+        samples = [(y0, x0), (y0, x1), (y1, x0), (y1, x1)]
+    else:
+        blocks = [((xa, xb), (ya, yb)) for xa, xb in ((x0, mx), (mx, x1)) for ya, yb in ((y0, my), (my, y1))]
+        samples = [(y, x) for y in (y0, my, y1) for x in (x0, mx, x1)]
+    val = np.empty((y1 - y0 + 1, x1 - x0 + 1) + H.shape[2:])
+    for (xa, xb), (ya, yb) in blocks:
+        sl = (slice(ya - y0, yb - y0 + 1), slice(xa - x0, xb - x0 + 1))
+        s, t = _world_st(p[ya:yb + 1, xa:xb + 1], p[ya, xa], p[ya, xb], p[yb, xb], p[yb, xa], n[y0, x0])
+        val[sl] = (1 - t) * ((1 - s) * H[ya, xa] + s * H[ya, xb]) + t * ((1 - s) * H[yb, xa] + s * H[yb, xb])
+    return val, samples
+
+
+def world_check(scene, p, n, g, coarse=16):
+    """Largest miss of the image-space and the world-space ``bilin9`` on an affine function of the hit
+    point, over the uniform coarse cells: ``(image, world, cells)``."""
+    import hemisphere_local_pass.core.adaptive as ad
+
+    plane = np.where(g >= 0, ad._input_planes(scene)[np.maximum(g, 0)], -1)
+    F = p @ np.array([[0.3, -0.2, 0.5], [0.1, 0.7, -0.4], [0.2, 0.2, 0.2]]).T
+    img = wld = 0.0
+    cells = 0
+    h, w = g.shape
+    for y0 in range(0, h - coarse, coarse):
+        for x0 in range(0, w - coarse, coarse):
+            x1, y1 = x0 + coarse, y0 + coarse
+            if plane[y0, x0] < 0 or (plane[y0:y1 + 1, x0:x1 + 1] != plane[y0, x0]).any():
+                continue
+            cells += 1
+            ref = F[y0:y1 + 1, x0:x1 + 1]
+            img = max(img, float(np.abs(_interp(F, x0, x1, y0, y1, "bilin9")[0] - ref).max() / np.ptp(ref)))
+            world = _world_interp(F, p, n, x0, x1, y0, y1, "wbilin9")[0]
+            wld = max(wld, float(np.abs(world - ref).max() / np.ptp(ref)))
+    return img, wld, cells
+
+
 def oracle(scene, p, n, g, H, tol, kind, coarse=16, predict=None):
     """Exact evaluations per hit pixel of the quadtree that accepts a cell when its true error <= tol.
 
@@ -126,7 +196,10 @@ def oracle(scene, p, n, g, H, tol, kind, coarse=16, predict=None):
     (control variates: the cell's C plus its interpolated residual)."""
     import hemisphere_local_pass.core.adaptive as ad
 
-    if predict is None:
+    if predict is None and kind.startswith("w"):
+        def predict(x0, x1, y0, y1):
+            return _world_interp(H, p, n, x0, x1, y0, y1, kind)
+    elif predict is None:
         def predict(x0, x1, y0, y1):
             return _interp(H, x0, x1, y0, y1, kind)
     valid = g >= 0
@@ -379,6 +452,8 @@ def main(argv=None):
     ap.add_argument("--control", default="", help="control variates: 'all' and/or near-polygon factors k")
     ap.add_argument("--visibility", action="store_true", help="also the interpolated visibility ratios")
     ap.add_argument("--no-replay", action="store_true", help="skip the replay and the first table")
+    ap.add_argument("--world", action="store_true",
+                    help="also the oracle of the bilinear interpolants in world coordinates (perspective-correct)")
     args = ap.parse_args(argv)
     scene, p, n, g, H = reference(args.scene, args.size)
     hit = g >= 0
@@ -399,6 +474,16 @@ def main(argv=None):
                 errs.append(f"{np.abs(img - H).max() / tol:.2f}")
             orc = [f"{oracle(scene, p, n, g, H, tol, k):.1%}" for k in ("floor", "bilin4", "bilin9", "biquad9")]
             print(f"| {rel:g} | {row[0]} | {row[1]} | {' / '.join(errs)} | " + " | ".join(orc) + " |", flush=True)
+    if args.world:
+        img, wld, cells = world_check(scene, p, n, g)
+        print(f"\nan affine function of the hit point over {cells} uniform coarse cells, largest miss over its range: "
+              f"image-space bilin9 {img:.2e}, world-space {wld:.2e}\n")
+        print("| tol / mean H | oracle bilin4 | oracle wbilin4 | oracle bilin9 | oracle wbilin9 |")
+        print("|---|---|---|---|---|")
+        for rel in rels:
+            tol = rel * mean
+            cols = [f"{oracle(scene, p, n, g, H, tol, k):.1%}" for k in ("bilin4", "wbilin4", "bilin9", "wbilin9")]
+            print(f"| {rel:g} | " + " | ".join(cols) + " |", flush=True)
     controls = [c for c in args.control.split(",") if c]
     if not controls and not args.visibility:
         return
