@@ -16,7 +16,9 @@ so they cost no exact evaluations and their counts do not depend on the machine'
   quadratic through them; with ``--world`` also ``wbilin4`` / ``wbilin9``, the same bilinear interpolants
   with each cell's coordinates taken on the surface (the pixel's hit point inside the quad of its corners'
   hit points), which reproduce a function affine on the plane exactly where image-space weights miss it
-  under perspective.
+  under perspective; with ``--estimates`` the same quadtree deciding from the samples alone
+  (:func:`estimate_quadtree`): the bilinear interpolant with the adaptive pass's estimate, and the
+  biquadratic with ``max |biquad9 - bilin9|`` as its estimate.
 
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_oracle.py --scene small --size 256
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_oracle.py --scene large --size 128
@@ -237,6 +239,73 @@ def oracle(scene, p, n, g, H, tol, kind, coarse=16, predict=None):
     return exact.sum() / valid.sum()
 
 
+def estimate_quadtree(scene, p, n, g, H, tol, mode, inner, edge_factor, coarse=16, ratios=None):
+    """The oracle's quadtree (uniform cells, isotropic, no shadow test) deciding from the samples alone.
+
+    A uniform cell of at least 2 pixels a side evaluates its nine samples; ``mode`` ``bilin`` interpolates with
+    ``bilin9`` and estimates its error by ``d``, the corners' bilinear miss at the five checks (the adaptive
+    pass's estimate); ``biquad`` interpolates with ``biquad9`` and estimates by ``max |biquad9 - bilin9|`` over
+    the cell (no further samples). The cell is accepted when ``factor × estimate <= tol`` (``edge_factor`` for a
+    cell touching a surface break or the border, ``inner`` otherwise). With ``inner = 0`` every cell is refined
+    and ``ratios`` (a list) collects ``(true error / estimate, edge, true error)`` of every uniform cell at least
+    4 pixels a side. Returns ``(exact evaluations per hit pixel, measured max error / tol)``."""
+    import hemisphere_local_pass.core.adaptive as ad
+
+    valid = g >= 0
+    plane = np.where(valid, ad._input_planes(scene)[np.maximum(g, 0)], -1)
+    unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
+    cj = np.cos(ad.NORMAL_JUMP)
+    bx = ~(valid[:, :-1] & valid[:, 1:] & (plane[:, :-1] == plane[:, 1:])
+           & (np.einsum("hwc,hwc->hw", unit[:, :-1], unit[:, 1:]) >= cj))
+    by = ~(valid[:-1] & valid[1:] & (plane[:-1] == plane[1:])
+           & (np.einsum("hwc,hwc->hw", unit[:-1], unit[1:]) >= cj))
+
+    def table(a):
+        t = np.zeros((a.shape[0] + 1, a.shape[1] + 1), dtype=np.int64)
+        t[1:, 1:] = a.cumsum(axis=0).cumsum(axis=1)
+        return t
+
+    tx, ty = table(bx), table(by)
+    h, w = g.shape
+    exact = np.zeros((h, w), bool)
+    out = np.zeros_like(H)
+    stack = [(x, min(x + coarse, w - 1), y, min(y + coarse, h - 1))
+             for y in range(0, h - 1, coarse) for x in range(0, w - 1, coarse)]
+    while stack:
+        x0, x1, y0, y1 = stack.pop()
+        for yy, xx in ((y0, x0), (y0, x1), (y1, x0), (y1, x1)):
+            exact[yy, xx] = valid[yy, xx]
+        if x1 - x0 <= 1 and y1 - y0 <= 1:
+            continue
+        mx, my = (x0 + x1) // 2, (y0 + y1) // 2
+        uni = valid[y0, x0] and not bx[y0:y1 + 1, x0:x1].any() and not by[y0:y1, x0:x1 + 1].any()
+        if uni and x1 - x0 >= 2 and y1 - y0 >= 2:
+            checks = ((y0, mx), (y1, mx), (my, x0), (my, x1), (my, mx))
+            for yy, xx in checks:
+                exact[yy, xx] = True
+            b4, _ = _interp(H, x0, x1, y0, y1, "bilin4")
+            b9, _ = _interp(H, x0, x1, y0, y1, "bilin9")
+            if mode == "bilin":
+                val = b9
+                est = max(float(np.abs(b4[yy - y0, xx - x0] - H[yy, xx]).max()) for yy, xx in checks)
+            else:
+                val, _ = _interp(H, x0, x1, y0, y1, "biquad9")
+                est = float(np.abs(val - b9).max())
+            at_edge = bool(ad._touches_break(tx, ty, *(np.array([v]) for v in (x0, x1, y0, y1)), w, h)[0])
+            true = float(np.abs(val - H[y0:y1 + 1, x0:x1 + 1]).max())
+            if ratios is not None and x1 - x0 >= 4:
+                ratios.append((true / max(est, 1e-300), at_edge, true))
+            if (edge_factor if at_edge else inner) * est <= tol:
+                sl = (slice(y0, y1 + 1), slice(x0, x1 + 1))
+                out[sl] = val
+                continue
+        xs = [(x0, mx), (mx, x1)] if x1 - x0 >= 2 else [(x0, x1)]
+        ys = [(y0, my), (my, y1)] if y1 - y0 >= 2 else [(y0, y1)]
+        stack += [(a, b, c, d) for a, b in xs for c, d in ys]
+    img = np.where(exact[..., None] | ~valid[..., None], H, out)
+    return exact.sum() / valid.sum(), float(np.abs(img - H).max()) / tol
+
+
 # ------------------------------------------------------------------------------ control variates
 def unoccluded_form_factors(ax, ay, az, nx, ny, nz):
     """Unoccluded form factors ``(F,)`` of convex polygons, the part above each receiver's tangent plane.
@@ -452,6 +521,9 @@ def main(argv=None):
     ap.add_argument("--control", default="", help="control variates: 'all' and/or near-polygon factors k")
     ap.add_argument("--visibility", action="store_true", help="also the interpolated visibility ratios")
     ap.add_argument("--no-replay", action="store_true", help="skip the replay and the first table")
+    ap.add_argument("--estimates", action="store_true",
+                    help="also the quadtree deciding from the samples: bilinear with its estimate, biquadratic with "
+                         "|biquad9 - bilin9|")
     ap.add_argument("--world", action="store_true",
                     help="also the oracle of the bilinear interpolants in world coordinates (perspective-correct)")
     args = ap.parse_args(argv)
@@ -483,6 +555,29 @@ def main(argv=None):
         for rel in rels:
             tol = rel * mean
             cols = [f"{oracle(scene, p, n, g, H, tol, k):.1%}" for k in ("bilin4", "wbilin4", "bilin9", "wbilin9")]
+            print(f"| {rel:g} | " + " | ".join(cols) + " |", flush=True)
+    if args.estimates:
+        print("\nquadtree deciding from the samples (uniform cells, isotropic, no shadow test): true error over the "
+              "estimate, cells >= 4 px with a true error above 0.1 tol (inside / at a break or border), and exact "
+              "evaluations per hit pixel (max error / tol) for factors inside / at breaks\n")
+        configs = (("bilin", 2, 4), ("biquad", 1, 2), ("biquad", 2, 4), ("biquad", 7, 14))
+        print("| tol / mean H | bilin9: true / d, max (p99) | biquad9: true / est, max (p99) | "
+              + " | ".join(f"{m} {a}/{b}" for m, a, b in configs) + " |")
+        print("|---|---|---|" + "---|" * len(configs))
+        for rel in rels:
+            tol = rel * mean
+            cols = []
+            for mode in ("bilin", "biquad"):
+                rat = []
+                estimate_quadtree(scene, p, n, g, H, tol, mode, 0.0, 0.0, ratios=rat)
+                r = np.array([x[0] for x in rat])
+                e = np.array([x[1] for x in rat])
+                big = np.array([x[2] for x in rat]) > 0.1 * tol
+                cols.append(" / ".join(f"{r[big & m].max():.2f} ({np.percentile(r[big & m], 99):.2f})"
+                                       for m in (~e, e)))
+            for mode, a, b in configs:
+                frac, err = estimate_quadtree(scene, p, n, g, H, tol, mode, a, b)
+                cols.append(f"{frac:.1%} ({err:.2f})")
             print(f"| {rel:g} | " + " | ".join(cols) + " |", flush=True)
     controls = [c for c in args.control.split(",") if c]
     if not controls and not args.visibility:
