@@ -79,20 +79,8 @@ def replay(scene, inputs, H_ref, G_ref, tol, variant, inner, edge, grad_min=0, c
         ok = valid[ys, xs]
         grad[ys[ok], xs[ok]] = True
 
-    plane = np.where(valid, ad._input_planes(scene)[np.maximum(g, 0)], -1)
     unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
-    cj = np.cos(ad.NORMAL_JUMP)
-    brk_x = ~(valid[:, :-1] & valid[:, 1:] & (plane[:, :-1] == plane[:, 1:])
-              & (np.einsum("hwc,hwc->hw", unit[:, :-1], unit[:, 1:]) >= cj))
-    brk_y = ~(valid[:-1] & valid[1:] & (plane[:-1] == plane[1:])
-              & (np.einsum("hwc,hwc->hw", unit[:-1], unit[1:]) >= cj))
-
-    def table(a):
-        t = np.zeros((a.shape[0] + 1, a.shape[1] + 1), dtype=np.int64)
-        t[1:, 1:] = a.cumsum(axis=0).cumsum(axis=1)
-        return t
-
-    tx, ty = table(brk_x), table(brk_y)
+    tx, ty = (ad._summed(b) for b in ad._surface_breaks(scene, unit, g))
 
     def box_sum(t, y0, y1, x0, x1):
         return t[y1 + 1, x1 + 1] - t[y0, x1 + 1] - t[y1 + 1, x0] + t[y0, x0]

@@ -191,27 +191,18 @@ def world_check(scene, p, n, g, coarse=16):
     return img, wld, cells
 
 
-def oracle(scene, p, n, g, H, tol, kind, coarse=16, predict=None):
-    """Exact evaluations per hit pixel of the quadtree that accepts a cell when its true error <= tol.
-
-    ``predict(x0, x1, y0, y1) -> (values (ny, nx, 3), samples)`` replaces the interpolant of ``kind``
-    (control variates: the cell's C plus its interpolated residual)."""
+def _breaks(scene, n, g):
+    """The adaptive pass's surface breaks ``(brk_x (h, w-1), brk_y (h-1, w))`` of the hit images."""
     import hemisphere_local_pass.core.adaptive as ad
 
-    if predict is None and kind.startswith("w"):
-        def predict(x0, x1, y0, y1):
-            return _world_interp(H, p, n, x0, x1, y0, y1, kind)
-    elif predict is None:
-        def predict(x0, x1, y0, y1):
-            return _interp(H, x0, x1, y0, y1, kind)
+    return ad._surface_breaks(scene, n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300), g)
+
+
+def _quadtree(g, bx, by, coarse, visit):
+    """The oracle's quadtree: coarse cells of ``coarse`` pixels, corners exact, isotropic splits down to single
+    pixels. ``visit(x0, x1, y0, y1)`` is called on every uniform cell at least 2 pixels a side and returns the
+    samples ``[(y, x)]`` of its interpolant when it accepts the cell, else None (split). Returns ``exact (h, w)``."""
     valid = g >= 0
-    plane = np.where(valid, ad._input_planes(scene)[np.maximum(g, 0)], -1)
-    unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
-    cj = np.cos(ad.NORMAL_JUMP)
-    bx = ~(valid[:, :-1] & valid[:, 1:] & (plane[:, :-1] == plane[:, 1:])
-           & (np.einsum("hwc,hwc->hw", unit[:, :-1], unit[:, 1:]) >= cj))
-    by = ~(valid[:-1] & valid[1:] & (plane[:-1] == plane[1:])
-           & (np.einsum("hwc,hwc->hw", unit[:-1], unit[1:]) >= cj))
     h, w = g.shape
     exact = np.zeros((h, w), bool)
     stack = [(x, min(x + coarse, w - 1), y, min(y + coarse, h - 1))
@@ -224,11 +215,8 @@ def oracle(scene, p, n, g, H, tol, kind, coarse=16, predict=None):
             continue
         uni = valid[y0, x0] and not bx[y0:y1 + 1, x0:x1].any() and not by[y0:y1, x0:x1 + 1].any()
         if uni and x1 - x0 >= 2 and y1 - y0 >= 2:
-            if kind == "floor":
-                val, samples = _interp(H, x0, x1, y0, y1, kind)
-            else:
-                val, samples = predict(x0, x1, y0, y1)
-            if kind == "floor" or np.abs(val - H[y0:y1 + 1, x0:x1 + 1]).max() <= tol:
+            samples = visit(x0, x1, y0, y1)
+            if samples is not None:
                 for yy, xx in samples:
                     exact[yy, xx] = True
                 continue
@@ -236,7 +224,30 @@ def oracle(scene, p, n, g, H, tol, kind, coarse=16, predict=None):
         xs = [(x0, mx), (mx, x1)] if x1 - x0 >= 2 else [(x0, x1)]
         ys = [(y0, my), (my, y1)] if y1 - y0 >= 2 else [(y0, y1)]
         stack += [(a, b, c, d) for a, b in xs for c, d in ys]
-    return exact.sum() / valid.sum()
+    return exact
+
+
+def oracle(scene, p, n, g, H, tol, kind, coarse=16, predict=None):
+    """Exact evaluations per hit pixel of the quadtree that accepts a cell when its true error <= tol.
+
+    ``predict(x0, x1, y0, y1) -> (values (ny, nx, 3), samples)`` replaces the interpolant of ``kind``
+    (control variates: the cell's C plus its interpolated residual)."""
+    if kind == "floor":
+        def predict(x0, x1, y0, y1):
+            return _interp(H, x0, x1, y0, y1, kind)
+    elif predict is None and kind.startswith("w"):
+        def predict(x0, x1, y0, y1):
+            return _world_interp(H, p, n, x0, x1, y0, y1, kind)
+    elif predict is None:
+        def predict(x0, x1, y0, y1):
+            return _interp(H, x0, x1, y0, y1, kind)
+
+    def visit(x0, x1, y0, y1):
+        val, samples = predict(x0, x1, y0, y1)
+        return samples if kind == "floor" or np.abs(val - H[y0:y1 + 1, x0:x1 + 1]).max() <= tol else None
+
+    exact = _quadtree(g, *_breaks(scene, n, g), coarse, visit)
+    return exact.sum() / (g >= 0).sum()
 
 
 def estimate_quadtree(scene, p, n, g, H, tol, mode, inner, edge_factor, coarse=16, ratios=None):
@@ -252,56 +263,33 @@ def estimate_quadtree(scene, p, n, g, H, tol, mode, inner, edge_factor, coarse=1
     import hemisphere_local_pass.core.adaptive as ad
 
     valid = g >= 0
-    plane = np.where(valid, ad._input_planes(scene)[np.maximum(g, 0)], -1)
-    unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
-    cj = np.cos(ad.NORMAL_JUMP)
-    bx = ~(valid[:, :-1] & valid[:, 1:] & (plane[:, :-1] == plane[:, 1:])
-           & (np.einsum("hwc,hwc->hw", unit[:, :-1], unit[:, 1:]) >= cj))
-    by = ~(valid[:-1] & valid[1:] & (plane[:-1] == plane[1:])
-           & (np.einsum("hwc,hwc->hw", unit[:-1], unit[1:]) >= cj))
-
-    def table(a):
-        t = np.zeros((a.shape[0] + 1, a.shape[1] + 1), dtype=np.int64)
-        t[1:, 1:] = a.cumsum(axis=0).cumsum(axis=1)
-        return t
-
-    tx, ty = table(bx), table(by)
     h, w = g.shape
-    exact = np.zeros((h, w), bool)
+    bx, by = _breaks(scene, n, g)
+    tx, ty = ad._summed(bx), ad._summed(by)
     out = np.zeros_like(H)
-    stack = [(x, min(x + coarse, w - 1), y, min(y + coarse, h - 1))
-             for y in range(0, h - 1, coarse) for x in range(0, w - 1, coarse)]
-    while stack:
-        x0, x1, y0, y1 = stack.pop()
-        for yy, xx in ((y0, x0), (y0, x1), (y1, x0), (y1, x1)):
-            exact[yy, xx] = valid[yy, xx]
-        if x1 - x0 <= 1 and y1 - y0 <= 1:
-            continue
+
+    def visit(x0, x1, y0, y1):
         mx, my = (x0 + x1) // 2, (y0 + y1) // 2
-        uni = valid[y0, x0] and not bx[y0:y1 + 1, x0:x1].any() and not by[y0:y1, x0:x1 + 1].any()
-        if uni and x1 - x0 >= 2 and y1 - y0 >= 2:
-            checks = ((y0, mx), (y1, mx), (my, x0), (my, x1), (my, mx))
-            for yy, xx in checks:
-                exact[yy, xx] = True
+        checks = ((y0, mx), (y1, mx), (my, x0), (my, x1), (my, mx))
+        b9, samples = _interp(H, x0, x1, y0, y1, "bilin9")
+        if mode == "bilin":
             b4, _ = _interp(H, x0, x1, y0, y1, "bilin4")
-            b9, _ = _interp(H, x0, x1, y0, y1, "bilin9")
-            if mode == "bilin":
-                val = b9
-                est = max(float(np.abs(b4[yy - y0, xx - x0] - H[yy, xx]).max()) for yy, xx in checks)
-            else:
-                val, _ = _interp(H, x0, x1, y0, y1, "biquad9")
-                est = float(np.abs(val - b9).max())
-            at_edge = bool(ad._touches_break(tx, ty, *(np.array([v]) for v in (x0, x1, y0, y1)), w, h)[0])
+            val = b9
+            est = max(float(np.abs(b4[yy - y0, xx - x0] - H[yy, xx]).max()) for yy, xx in checks)
+        else:
+            val, _ = _interp(H, x0, x1, y0, y1, "biquad9")
+            est = float(np.abs(val - b9).max())
+        at_edge = bool(ad._touches_break(tx, ty, *(np.array([v]) for v in (x0, x1, y0, y1)), w, h)[0])
+        if ratios is not None and x1 - x0 >= 4:
             true = float(np.abs(val - H[y0:y1 + 1, x0:x1 + 1]).max())
-            if ratios is not None and x1 - x0 >= 4:
-                ratios.append((true / max(est, 1e-300), at_edge, true))
-            if (edge_factor if at_edge else inner) * est <= tol:
-                sl = (slice(y0, y1 + 1), slice(x0, x1 + 1))
-                out[sl] = val
-                continue
-        xs = [(x0, mx), (mx, x1)] if x1 - x0 >= 2 else [(x0, x1)]
-        ys = [(y0, my), (my, y1)] if y1 - y0 >= 2 else [(y0, y1)]
-        stack += [(a, b, c, d) for a, b in xs for c, d in ys]
+            ratios.append((true / max(est, 1e-300), at_edge, true))
+        if (edge_factor if at_edge else inner) * est <= tol:
+            out[y0:y1 + 1, x0:x1 + 1] = val
+            return samples
+        # rejected: its checks are its children's corners, evaluated by the quadtree
+        return None
+
+    exact = _quadtree(g, bx, by, coarse, visit)
     img = np.where(exact[..., None] | ~valid[..., None], H, out)
     return exact.sum() / valid.sum(), float(np.abs(img - H).max()) / tol
 

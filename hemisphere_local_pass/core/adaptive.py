@@ -551,20 +551,8 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
         return H, stats
 
     # --- surface discontinuities between adjacent pixels, as summed-area tables --------------------
-    plane = np.where(valid, _input_planes(scene)[np.maximum(g, 0)], -1)
     unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
-    cos_jump = np.cos(NORMAL_JUMP)
-    brk_x = ~(valid[:, :-1] & valid[:, 1:] & (plane[:, :-1] == plane[:, 1:])
-              & (np.einsum("hwc,hwc->hw", unit[:, :-1], unit[:, 1:]) >= cos_jump))   # (h, w-1)
-    brk_y = ~(valid[:-1] & valid[1:] & (plane[:-1] == plane[1:])
-              & (np.einsum("hwc,hwc->hw", unit[:-1], unit[1:]) >= cos_jump))         # (h-1, w)
-
-    def table(a):
-        t = np.zeros((a.shape[0] + 1, a.shape[1] + 1), dtype=np.int64)
-        t[1:, 1:] = a.cumsum(axis=0).cumsum(axis=1)
-        return t
-
-    tx, ty = table(brk_x), table(brk_y)
+    tx, ty = (_summed(b) for b in _surface_breaks(scene, unit, g))
 
     def box_sum(t, y0, y1, x0, x1):  # inclusive pixel ranges; empty ranges sum to 0
         return t[y1 + 1, x1 + 1] - t[y0, x1 + 1] - t[y1 + 1, x0] + t[y0, x0]
@@ -708,6 +696,27 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
     stats.error_estimate = float(err.max()) if err.size else 0.0
     stats.sample_bound = float(bound.max()) if bound.size else 0.0
     return H, stats
+
+
+def _surface_breaks(scene: Scene, unit, g):
+    """Surface breaks between adjacent pixels (step 2): ``(brk_x (h, w-1), brk_y (h-1, w))`` bool, True where
+    a pixel and its right / lower neighbour are not both hit, lie on different planes, or have unit normals
+    ``unit (h, w, 3)`` more than :data:`NORMAL_JUMP` apart; ``g (h, w)`` the hit polygons' input indices."""
+    valid = g >= 0
+    plane = np.where(valid, _input_planes(scene)[np.maximum(g, 0)], -1)
+    cos_jump = np.cos(NORMAL_JUMP)
+    brk_x = ~(valid[:, :-1] & valid[:, 1:] & (plane[:, :-1] == plane[:, 1:])
+              & (np.einsum("hwc,hwc->hw", unit[:, :-1], unit[:, 1:]) >= cos_jump))
+    brk_y = ~(valid[:-1] & valid[1:] & (plane[:-1] == plane[1:])
+              & (np.einsum("hwc,hwc->hw", unit[:-1], unit[1:]) >= cos_jump))
+    return brk_x, brk_y
+
+
+def _summed(a):
+    """Summed-area table ``(h+1, w+1)`` int64 of ``a (h, w)``: ``t[y, x]`` = the sum of ``a[:y, :x]``."""
+    t = np.zeros((a.shape[0] + 1, a.shape[1] + 1), dtype=np.int64)
+    t[1:, 1:] = a.cumsum(axis=0).cumsum(axis=1)
+    return t
 
 
 def _children(x0, x1, y0, y1, depth, s, want_x, want_y, clear):
