@@ -169,6 +169,7 @@ def main(argv=None):
                f"--sample-share {args.sample_share:g} --final-share {args.final_share:g}"
                + (f" --exact-time {args.exact_time}" if args.exact_time else "")
                + ("" if args.serial_exact else " --no-serial-exact")
+               + ("" if args.max_seconds == 120.0 else f" --max-seconds {args.max_seconds:g}")
                + ("" if Path(args.out) == DOCS / "bench_time_vs_error" else f" --out {args.out}"))
     rels = [float(r) for r in args.rel.split(",")]
     report = {"machine": machine(), "command": command, "size": args.size, "workers": args.workers,

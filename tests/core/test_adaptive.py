@@ -233,6 +233,28 @@ def test_thin_shadow_lines_slip_without_the_shadow_test():
     assert np.abs(img - ref).max() <= tol
 
 
+@pytest.mark.parametrize("y0, x0, rel, where", [
+    (368, 448, 1e-3, "right wall where it crosses the plane of a block face"),
+    (256, 80, 1e-2, "left wall where the light's penumbra starts"),
+])
+def test_kinks_between_a_cells_samples_slip_without_the_extended_check(y0, x0, rel, where):
+    """A 32² crop of the 512² Cornell box: a cell's own nine samples see the curvature at its centre only,
+    so a kink between a corner and the midpoint (or a narrow valley between two kinks) slips: measured
+    1.54× / 1.10× the tolerance without ``neighbour_check`` (5.1× on the first crop at 3e-4; up to 1.5× on the
+    full 512² image at 1e-2 to 1e-4 of the mean, 3.0× at 1024²: docs/adaptive.md). Extending each spot check
+    one spacing beyond the cell (the second difference at its corners) sees it: 0.07× the tolerance."""
+    scene, o, d = cornell(size=512)
+    idx = (np.arange(y0, y0 + 32)[:, None] * 512 + np.arange(x0, x0 + 32)[None]).reshape(-1)
+    p, n, g = image_inputs(scene, o[idx], d[idx], size=32)
+    ref = exact_image(scene, p, n, g)
+    tol = rel * ref[g >= 0].mean()
+    img, st_old = adaptive_irradiance(scene, p, n, g, tolerance=tol, neighbour_check=False)
+    assert np.abs(img - ref).max() > tol, where
+    img, st = adaptive_irradiance(scene, p, n, g, tolerance=tol)
+    assert np.abs(img - ref).max() <= tol, (where, np.abs(img - ref).max() / tol)
+    assert st.exact_points < int((g >= 0).sum()), "the crop is not all exact: the test sees interpolation"
+
+
 def test_anisotropic_splits_follow_one_dimensional_variation():
     """A floor under a long light bar along y: H varies along x only, so rejected cells are halved along
     x alone (their interpolation along y passes, up to 2:1 cells), with fewer exact pixels (measured 721
