@@ -18,7 +18,9 @@ so they cost no exact evaluations and their counts do not depend on the machine'
   hit points), which reproduce a function affine on the plane exactly where image-space weights miss it
   under perspective; with ``--estimates`` the same quadtree deciding from the samples alone
   (:func:`estimate_quadtree`): the bilinear interpolant with the adaptive pass's estimate, and the
-  biquadratic with ``max |biquad9 - bilin9|`` as its estimate.
+  biquadratic with ``max |biquad9 - bilin9|`` as its estimate;
+* ``--neighbour``: the replay without and with the spot check extended one sample spacing beyond the cell
+  (``neighbour_check``): exact evaluations per hit pixel, max error over the tolerance, pixels over it.
 
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_oracle.py --scene small --size 256
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_oracle.py --scene large --size 128
@@ -512,6 +514,8 @@ def main(argv=None):
     ap.add_argument("--estimates", action="store_true",
                     help="also the quadtree deciding from the samples: bilinear with its estimate, biquadratic with "
                          "|biquad9 - bilin9|")
+    ap.add_argument("--neighbour", action="store_true",
+                    help="also the replay without and with the spot check extended beyond the cell (neighbour_check)")
     ap.add_argument("--world", action="store_true",
                     help="also the oracle of the bilinear interpolants in world coordinates (perspective-correct)")
     args = ap.parse_args(argv)
@@ -534,6 +538,21 @@ def main(argv=None):
                 errs.append(f"{np.abs(img - H).max() / tol:.2f}")
             orc = [f"{oracle(scene, p, n, g, H, tol, k):.1%}" for k in ("floor", "bilin4", "bilin9", "biquad9")]
             print(f"| {rel:g} | {row[0]} | {row[1]} | {' / '.join(errs)} | " + " | ".join(orc) + " |", flush=True)
+    if args.neighbour:
+        print("\nthe replay without / with the spot check extended beyond the cell (neighbour_check; anisotropic):\n")
+        print("| tol / mean H | exact, without | exact, with (now) | max error / tol, without | with | "
+              "pixels over tol, without | with |")
+        print("|---|---|---|---|---|---|---|")
+        for rel in rels:
+            tol = rel * mean
+            fr, mx, over = [], [], []
+            for on in (False, True):
+                img, st = replay(scene, p, n, g, H, tol, neighbour_check=on)
+                e = np.abs(img - H).max(axis=2) / tol
+                fr.append(f"{st.exact_fraction:.1%}")
+                mx.append(f"{e.max():.3f}")
+                over.append(str(int((e > 1.0).sum())))
+            print(f"| {rel:g} | {fr[0]} | {fr[1]} | {mx[0]} | {mx[1]} | {over[0]} | {over[1]} |", flush=True)
     if args.world:
         img, wld, cells = world_check(scene, p, n, g)
         print(f"\nan affine function of the hit point over {cells} uniform coarse cells, largest miss over its range: "

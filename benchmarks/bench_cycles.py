@@ -56,9 +56,10 @@ DOCS = ROOT / "docs"
 SHIFT_PX = (0.13, 0.07)
 
 
-def shifted_camera_rays(box, size):
-    """Camera rays through the pixel centres moved by :data:`SHIFT_PX` (Blender's lens shift), started
-    just inside the front wall like :func:`scenes.camera_rays`; ``(size², 3)`` each, top row first."""
+def shifted_camera_rays(box, size, shift=SHIFT_PX):
+    """Camera rays through the pixel centres moved by ``shift`` pixels (default :data:`SHIFT_PX`, Blender's
+    lens shift), started just inside the front wall like :func:`scenes.camera_rays`; ``(size², 3)`` each,
+    top row first."""
     o, d = camera_rays(box, size)
     cam = box.camera
     fwd = cam["direction"] / np.linalg.norm(cam["direction"])
@@ -66,7 +67,7 @@ def shifted_camera_rays(box, size):
     right /= np.linalg.norm(right)
     up = np.cross(right, fwd)
     px = 2.0 * np.tan(0.5 * cam["fov"]) / size  # pixel size on the image plane at distance 1
-    d = d / (d @ fwd)[:, None] + px * (SHIFT_PX[0] * right + SHIFT_PX[1] * up)
+    d = d / (d @ fwd)[:, None] + px * (shift[0] * right + shift[1] * up)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     t0 = (1e-9 * box.size - cam["location"][1]) / d[:, 1]
     return cam["location"] + t0[:, None] * d, d
