@@ -434,3 +434,32 @@ def test_far_field_samples_tolerance_zero_and_bad_share():
             adaptive_irradiance(scene, p, n, g, tolerance=0.1, sample_share=bad)
         with pytest.raises(ValueError, match="final_share"):
             adaptive_irradiance(scene, p, n, g, tolerance=0.1, sample_share=0.1, final_share=bad)
+
+
+def test_neighbour_misses_are_the_corners_second_differences():
+    """``_neighbour_misses`` on a synthetic image: half the second difference at each end of a cell, along the
+    axis it varies on, from exact samples on the same surface only (a break or a missing sample drops it)."""
+    from hemisphere_local_pass.core.adaptive import _neighbour_misses, _summed
+
+    h, w = 5, 12
+    x = np.arange(w, dtype=float)
+    f = np.abs(x - 8.6) + 0.01 * x**2                          # a kink between x = 8 and 10
+    H = np.repeat(np.broadcast_to(f, (h, w))[..., None], 3, axis=2).copy()
+    exact = np.ones((h, w), dtype=bool)
+    bound = np.zeros((h, w))
+    no_x, no_y = np.zeros((h, w - 1), dtype=bool), np.zeros((h - 1, w), dtype=bool)
+    cell = [np.array([v]) for v in (4, 6, 8, 0, 2, 4)]          # x0, mx, x1, y0, my, y1
+    left, right = abs(f[2] - 2 * f[4] + f[6]) / 2, abs(f[10] - 2 * f[8] + f[6]) / 2
+    ax, ay = _neighbour_misses(H, exact, bound, _summed(no_x), _summed(no_y), *cell)
+    assert ax[0] == max(left, right) and right > left and ay[0] == 0.0
+    brk = no_x.copy()
+    brk[:, 9] = True                                          # a surface break between x = 9 and 10
+    ax, _ = _neighbour_misses(H, exact, bound, _summed(brk), _summed(no_y), *cell)
+    assert ax[0] == left
+    missing = exact.copy()
+    missing[:, 2] = False                                     # the left outside pixel is no sample
+    ax, _ = _neighbour_misses(H, missing, bound, _summed(brk), _summed(no_y), *cell)
+    assert ax[0] == 0.0
+    bound[0, 10] = 0.5                                        # a far-field sample's bound counts 4 b, halved
+    ax, _ = _neighbour_misses(H, exact, bound, _summed(no_x), _summed(no_y), *cell)
+    assert ax[0] == max(left, right + 1.0)
