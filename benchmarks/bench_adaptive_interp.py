@@ -82,16 +82,8 @@ def replay(scene, inputs, H_ref, G_ref, tol, variant, inner, edge, grad_min=0, c
     unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
     tx, ty = (ad._summed(b) for b in ad._surface_breaks(scene, unit, g))
 
-    def box_sum(t, y0, y1, x0, x1):
-        return t[y1 + 1, x1 + 1] - t[y0, x1 + 1] - t[y1 + 1, x0] + t[y0, x0]
-
     def uniform(x0, x1, y0, y1):
-        ok = valid[y0, x0].copy()
-        wide = x1 > x0
-        ok[wide] &= box_sum(tx, y0[wide], y1[wide], x0[wide], x1[wide] - 1) == 0
-        tall = y1 > y0
-        ok[tall] &= box_sum(ty, y0[tall], y1[tall] - 1, x0[tall], x1[tall]) == 0
-        return ok
+        return ad._uniform(valid, tx, ty, x0, x1, y0, y1)
 
     lights = [lg for lg in ad.light_groups(scene) if np.pi * lg["radiance"] > tol]
     bvh = ad.build_bvh(scene) if lights else None

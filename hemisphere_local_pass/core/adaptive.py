@@ -571,17 +571,6 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
     unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
     tx, ty = (_summed(b) for b in _surface_breaks(scene, unit, g))
 
-    def box_sum(t, y0, y1, x0, x1):  # inclusive pixel ranges; empty ranges sum to 0
-        return t[y1 + 1, x1 + 1] - t[y0, x1 + 1] - t[y1 + 1, x0] + t[y0, x0]
-
-    def uniform(x0, x1, y0, y1):
-        ok = valid[y0, x0].copy()
-        wide = x1 > x0
-        ok[wide] &= box_sum(tx, y0[wide], y1[wide], x0[wide], x1[wide] - 1) == 0
-        tall = y1 > y0
-        ok[tall] &= box_sum(ty, y0[tall], y1[tall] - 1, x0[tall], x1[tall]) == 0
-        return ok
-
     lights = [lg for lg in light_groups(scene, ratio=light_ratio) if np.pi * lg["radiance"] > tol]
     stats.lights = len(lights)
     bvh = build_bvh(scene) if lights else None
@@ -616,7 +605,7 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
             x0, x1, y0, y1, depth, clear = frontier
             corners.append((x0, x1, y0, y1))
             small = (x1 - x0 <= 1) & (y1 - y0 <= 1)          # every pixel is a corner: exact
-            ok = ~small & (clear | uniform(x0, x1, y0, y1))
+            ok = ~small & (clear | _uniform(valid, tx, ty, x0, x1, y0, y1))
             forced = ~small & ~ok
             stats.forced_surface += int(forced.sum())
             if lights and (ok & ~clear).any():
@@ -775,35 +764,51 @@ def _neighbour_misses(H, exact, bound, tx, ty, x0, mx, x1, y0, my, y1):
     exact sample on the same surface (no break between), the miss ``|f(out) - (2 f(end) - f(mid))|`` is the
     second difference at the cell's corner, as the midpoint check's miss is half the one at its centre. A kink
     between a corner and the midpoint leaves the midpoint's second difference small while the corner's is
-    not; halved, it is on the scale of the spot checks' misses. Likewise along the three sample columns.
+    not; halved, it is on the scale of the spot checks' misses. Likewise along the three sample columns (the
+    same on the transposed image: ``ty.T`` is the summed-area table of the transposed breaks).
     Returns ``(along_x, along_y)`` (c,) each: half the largest such second difference (largest channel), with
     the samples' far-field bounds (4 b: weights 1, 2, 1), 0 where no check applies.
     """
-    h, w = exact.shape
-    c = len(x0)
-    out = [np.zeros(c), np.zeros(c)]
-    for axis, (lo, mid, hi, lines) in enumerate(((x0, mx, x1, (y0, my, y1)), (y0, my, y1, (x0, mx, x1)))):
-        size = w if axis == 0 else h
-        for end, inner in ((lo, mid), (hi, mid)):
-            s = end - inner                                  # toward the outside: -(spacing) or +(spacing)
-            o = end + s
-            ok = (s != 0) & (o >= 0) & (o < size)
-            oc = np.clip(o, 0, size - 1)
-            a, z = np.minimum(oc, end), np.maximum(oc, end)  # the links between the outside pixel and the end
-            for line in lines:
-                if axis == 0:
-                    yy, xo, xe, xi = line, oc, end, inner
-                    sel = ok & exact[yy, xo] & (tx[yy + 1, z] - tx[yy, z] - tx[yy + 1, a] + tx[yy, a] == 0)
-                    f_o, f_e, f_i = H[yy, xo], H[yy, xe], H[yy, xi]
-                    bb = np.maximum(np.maximum(bound[yy, xo], bound[yy, xe]), bound[yy, xi])
-                else:
-                    xx, yo, ye, yi = line, oc, end, inner
-                    sel = ok & exact[yo, xx] & (ty[z, xx + 1] - ty[a, xx + 1] - ty[z, xx] + ty[a, xx] == 0)
-                    f_o, f_e, f_i = H[yo, xx], H[ye, xx], H[yi, xx]
-                    bb = np.maximum(np.maximum(bound[yo, xx], bound[ye, xx]), bound[yi, xx])
-                d2 = np.abs(f_o - 2.0 * f_e + f_i).max(axis=1)
-                np.maximum(out[axis], np.where(sel, 0.5 * d2 + 2.0 * bb, 0.0), out=out[axis])
-    return out[0], out[1]
+    along_x = _row_extension_misses(H, exact, bound, tx, (x0, mx, x1), (y0, my, y1))
+    along_y = _row_extension_misses(H.swapaxes(0, 1), exact.T, bound.T, ty.T, (y0, my, y1), (x0, mx, x1))
+    return along_x, along_y
+
+
+def _row_extension_misses(H, exact, bound, tx, cols, rows):
+    """:func:`_neighbour_misses` along x: ``cols = (x0, mx, x1)``, ``rows`` the cells' three sample rows."""
+    w = exact.shape[1]
+    lo, mid, hi = cols
+    out = np.zeros(len(lo))
+    for end in (lo, hi):
+        s = end - mid                                        # toward the outside: -(spacing) or +(spacing)
+        o = end + s
+        ok = (s != 0) & (o >= 0) & (o < w)
+        o = np.clip(o, 0, w - 1)
+        a, z = np.minimum(o, end), np.maximum(o, end)        # the links between the outside pixel and the end
+        for y in rows:
+            sel = ok & exact[y, o] & (_box_sum(tx, y, y, a, z - 1) == 0)
+            d2 = np.abs(H[y, o] - 2.0 * H[y, end] + H[y, mid]).max(axis=1)
+            b = np.maximum(np.maximum(bound[y, o], bound[y, end]), bound[y, mid])
+            np.maximum(out, np.where(sel, 0.5 * d2 + 2.0 * b, 0.0), out=out)
+    return out
+
+
+def _uniform(valid, tx, ty, x0, x1, y0, y1):
+    """(c,) True where cells ``[x0, x1] × [y0, y1]`` hold no surface break (step 2, *surface*): their first
+    pixel hit (``valid (h, w)``) and no break between two of their pixels (``tx, ty``: :func:`_summed` tables
+    of :func:`_surface_breaks`)."""
+    ok = valid[y0, x0].copy()
+    wide = x1 > x0
+    ok[wide] &= _box_sum(tx, y0[wide], y1[wide], x0[wide], x1[wide] - 1) == 0
+    tall = y1 > y0
+    ok[tall] &= _box_sum(ty, y0[tall], y1[tall] - 1, x0[tall], x1[tall]) == 0
+    return ok
+
+
+def _box_sum(t, y0, y1, x0, x1):
+    """Sum over the inclusive pixel ranges ``[y0, y1] × [x0, x1]`` of the table ``t`` made by :func:`_summed`
+    (empty ranges sum to 0)."""
+    return t[y1 + 1, x1 + 1] - t[y0, x1 + 1] - t[y1 + 1, x0] + t[y0, x0]
 
 
 def _covered(h, w, x0, x1, y0, y1):
@@ -823,9 +828,7 @@ def _touches_break(tx, ty, x0, x1, y0, y1, w, h):
     border = (x0 == 0) | (y0 == 0) | (x1 == w - 1) | (y1 == h - 1)
     a0, a1 = np.maximum(x0 - 1, 0), np.minimum(x1, w - 2)       # horizontal links of the grown cell
     b0, b1 = np.maximum(y0 - 1, 0), np.minimum(y1, h - 2)
-    sx = tx[y1 + 1, a1 + 1] - tx[y0, a1 + 1] - tx[y1 + 1, a0] + tx[y0, a0]
-    sy = ty[b1 + 1, x1 + 1] - ty[b0, x1 + 1] - ty[b1 + 1, x0] + ty[b0, x0]
-    return border | (sx > 0) | (sy > 0)
+    return border | (_box_sum(tx, y0, y1, a0, a1) > 0) | (_box_sum(ty, b0, b1, x0, x1) > 0)
 
 
 def _fill_bilinear(H, err, exact, x0, x1, y0, y1, est):
