@@ -95,7 +95,7 @@ from .local_pass import (
     visible_fragments_and_clear_tiles,
     visible_fragments_with_ff,
 )
-from .receivers import limit_groups
+from .receivers import idle_limits_dropped, limit_groups
 from .scene import Scene
 from .tolerances import COORD_EPS
 
@@ -567,6 +567,7 @@ def _gradients(scene, points, normals, limit_directions, progress, cancel, occlu
     from .local_pass import Cancelled
 
     p, n, u = _prepare_receivers(points, normals, limit_directions)
+    u = idle_limits_dropped(scene, p, n, u)  # as irradiance does (receivers.idle_limits_dropped)
     m = len(p)
     gp = np.zeros((m, 3, 3))
     gn = np.zeros((m, 3, 3))

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .chunk import visible_fragments_with_ff
-from .receivers import prepare_receivers
+from .receivers import idle_limits_dropped, prepare_receivers
 from .scene import Scene
 
 __all__ = ["Projection", "project_point"]
@@ -44,6 +44,7 @@ class Projection:
 def project_point(scene: Scene, point, normal, *, limit_direction=None, occluders=None) -> Projection:
     """Visible fragments of every polygon seen from one receiver point, with their form factors."""
     pts, nrm, lim = prepare_receivers(point, normal, limit_direction, single=True)
+    lim = idle_limits_dropped(scene, pts, nrm, lim)  # as form_factors and irradiance do: the same values
     frags, ff = visible_fragments_with_ff(scene, pts, nrm, lim, occluders=occluders)
     fragments, dists = [], []
     for f in range(len(frags.counts)):

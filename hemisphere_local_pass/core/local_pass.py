@@ -37,7 +37,7 @@ from .clear_tiles import clear_form_factors, clear_irradiance
 from .culling import Occluders
 from .far_field import ROUNDING, FarFieldStats, far_field_irradiance, proxy_scene
 from .parallel import PREPARE_LOCK, run_chunks
-from .receivers import limit_groups, prepare_receivers
+from .receivers import idle_limits_dropped, limit_groups, prepare_receivers
 from .scene import Scene
 
 __all__ = ["Cancelled", "FarFieldStats", "form_factors", "irradiance", "prepare_scene", "radiance",
@@ -104,6 +104,7 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
     ``out`` is ``(m, ...)``; ``extra``: further arguments of every chunk (after ``p, n, u``)."""
     _settle_allocator()
     p, n, u = _prepare_receivers(points, normals, limit_directions)
+    u = idle_limits_dropped(scene, p, n, u)  # the limit path costs ~10x; most vertex receivers need none
     chunks = _chunks(scene, len(p), budget, polygons)
     if len(chunks) > 1 and (executor is not None or workers != 1) and len(occ.tile_occluder):
         with PREPARE_LOCK:

@@ -36,7 +36,7 @@ import numpy as np
 
 from .tolerances import RAY_EPS
 
-__all__ = ["RAY_EPS", "RayHits", "Bvh", "build_bvh", "cast_rays", "default_t_min"]
+__all__ = ["RAY_EPS", "RayHits", "Bvh", "box_query", "build_bvh", "cast_rays", "default_t_min"]
 
 
 #: Polygons per BVH leaf.
@@ -330,3 +330,21 @@ def cast_rays(
     front = np.zeros(r, dtype=bool)
     front[hit] = np.einsum("rc,rc->r", scene.poly_normals[poly[hit]], d[hit]) < 0.0
     return RayHits(t, poly, source.astype(np.int64), point, front)
+
+
+def box_query(bvh, lo, hi):
+    """Pairs ``(query, polygon)`` whose boxes overlap: ``lo, hi (q, 3)`` query boxes; convex-polygon ids."""
+    q = np.arange(len(lo))
+    node = np.zeros(len(lo), dtype=np.int64)
+    for level, box in enumerate(bvh.levels):
+        b = np.take(box, node, axis=1)  # (6, pairs)
+        keep = np.all((b[:3] <= hi[q].T) & (b[3:] >= lo[q].T), axis=0)  # NaN (empty node) is False
+        q, node = q[keep], node[keep]
+        if level < len(bvh.levels) - 1:
+            q = np.repeat(q, 2)
+            node = (2 * node[:, None] + np.arange(2)).reshape(-1)
+    polys = np.take(bvh.leaf_polys, node, axis=0)  # (pairs, leaf)
+    q = np.repeat(q, polys.shape[1])
+    polys = polys.reshape(-1)
+    ok = polys >= 0
+    return q[ok], polys[ok]

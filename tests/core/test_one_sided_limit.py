@@ -212,3 +212,32 @@ def test_limit_at_every_vertex_and_edge_of_a_closed_scene(core, rng, scene):
     )
     F0 = core.form_factors(s, P, N)
     assert np.all(np.isfinite(F0)) and F0.min() >= 0.0 and F0.sum(axis=1).max() <= 1.0 + 1e-10
+
+
+def test_idle_limits_are_dropped_and_agree_with_the_limit_path(core, rng, monkeypatch):
+    """``receivers.idle_limits_dropped``: a receiver that no polygon off its own plane touches needs no one-sided
+    limit (the limit path costs ~10x per receiver; vertices mode hands every corner in with one). At every
+    face corner and edge midpoint of a split box and of the Cornell box, the dropped receivers' values agree
+    with the limit path's (forced for all) to 1e-12 of the largest H, the kept ones bit for bit; every
+    receiver on another face's plane and inside its box (feet of walls and blocks, room corners) keeps its limit."""
+    from hemisphere_local_pass.core import local_pass, receivers
+
+    for mesh in (split_box(LO, HI, rng, inward=True), cornell_box()):
+        verts, polys = mesh.arrays()
+        s = core.Scene.from_polygons(verts, polys, rng.uniform(0.0, 1.0, (len(polys), 3)))
+        P, N, U = face_boundary_receivers(mesh)
+        u = receivers.prepare_receivers(P, N, U)[2]
+        kept = receivers.idle_limits_dropped(s, P, unit(N), u).any(axis=1)
+        H = core.irradiance(s, P, N, limit_directions=U)
+        with monkeypatch.context() as mp:
+            mp.setattr(local_pass, "idle_limits_dropped", lambda scene, p, n, u: u)
+            H_limit = core.irradiance(s, P, N, limit_directions=U)
+        assert 0 < kept.sum() < len(P), (kept.sum(), len(P))
+        np.testing.assert_array_equal(H[kept], H_limit[kept])
+        np.testing.assert_allclose(H[~kept], H_limit[~kept], rtol=0, atol=1e-12 * np.abs(H_limit).max())
+        # a receiver on the plane of a polygon not coplanar with it, inside that polygon's box, keeps its limit
+        sp, sn = s.poly_vertices, s.poly_normals
+        on_plane = np.abs(np.einsum("pc,mc->mp", sn, P) - np.einsum("pc,pc->p", sn, sp[:, 0])[None]) <= 1e-9
+        in_box = ((sp.min(axis=1)[None] - 1e-9 <= P[:, None]) & (P[:, None] <= sp.max(axis=1)[None] + 1e-9)).all(axis=2)
+        not_coplanar = np.abs(unit(N) @ sn.T) < 1.0 - 1e-9
+        assert kept[(on_plane & in_box & not_coplanar).any(axis=1)].all()
