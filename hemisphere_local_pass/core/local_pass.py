@@ -105,6 +105,14 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
     _settle_allocator()
     p, n, u = _prepare_receivers(points, normals, limit_directions)
     u = idle_limits_dropped(scene, p, n, u)  # the limit path costs ~10x; most vertex receivers need none
+    reps, copies = _distinct_receivers(p, n, u)
+    if reps is not None:
+        # the same receiver several times (a mesh vertex's corners on one plane, their idle limits dropped):
+        # evaluated once, the value copied; a receiver's value does not depend on the others of its call
+        # (tests/core/test_receiver_independence.py), so the copies are bit for bit their own evaluations
+        full = out
+        out = np.zeros((len(reps),) + full.shape[1:], dtype=full.dtype)
+        p, n, u = p[reps], n[reps], None if u is None else u[reps]
     chunks = _chunks(scene, len(p), budget, polygons)
     if len(chunks) > 1 and (executor is not None or workers != 1) and len(occ.tile_occluder):
         with PREPARE_LOCK:
@@ -122,6 +130,25 @@ def _run(scene, occ, points, normals, limit_directions, progress, cancel, budget
 
     run_chunks(_limits_apart, (scene, occ, budget), chunks, args_of, store, workers=workers, executor=executor,
                progress=progress, cancel=cancel, key=scene)
+    if reps is not None:
+        full[:] = out[copies]
+
+
+def _distinct_receivers(p, n, u):
+    """``(reps (k,), copies (m,))`` with ``receiver i == receiver reps[copies[i]]`` bit for bit (point, normal and
+    limit direction), ``reps`` in their first order; ``(None, None)`` when all ``m`` receivers differ."""
+    m = len(p)
+    if m < 2:
+        return None, None
+    key = np.ascontiguousarray(np.column_stack([p, n] + ([] if u is None else [u])))
+    rows = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).reshape(-1)  # the bytes: -0.0 != 0.0
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    if len(first) == m:
+        return None, None
+    order = np.argsort(first, kind="stable")  # distinct receivers in the order they came (chunks stay coherent)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[order] = np.arange(len(first))
+    return first[order], rank[inverse.reshape(-1)]
 
 
 def _limits_apart(shared, chunk_fn, p, n, u, *extra) -> np.ndarray:

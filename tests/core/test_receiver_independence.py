@@ -82,3 +82,24 @@ def test_another_receivers_limit_leaves_the_gradients_alone(box, receivers):
     mixed = irradiance_gradient(scene, p, n, limit_directions=lim)
     free = ~lim.any(axis=1)
     assert np.array_equal(_bits(mixed[free]), _bits(plain[free]))
+
+
+def test_repeated_receivers_are_evaluated_once_to_the_same_bits(box, receivers):
+    """A mesh vertex's corners on one plane are the same receiver (once their idle limits are dropped,
+    receivers.idle_limits_dropped): the core evaluates each distinct receiver once and copies its value, which
+    by the property above is bit for bit what each copy's own evaluation gives. -0.0 and 0.0 are kept apart."""
+    scene = box.scene(radiance=box.emission + 0.3 * box.reflectivity)
+    p, n = (a[:20] for a in receivers)
+    rep = np.r_[np.arange(20), [3, 3, 11, 0, 19, 11]]
+    totals = []
+    for fn in (irradiance, form_factors):
+        distinct = fn(scene, p, n, workers=1)
+        repeated = fn(scene, p[rep], n[rep], workers=1, progress=lambda done, total: totals.append(total))
+        assert np.array_equal(_bits(repeated), _bits(distinct[rep])), fn.__name__
+    assert set(totals) == {20}  # the distinct receivers only
+    from hemisphere_local_pass.core.local_pass import _distinct_receivers
+
+    q = np.array([[0.0, 1.0, 2.0], [-0.0, 1.0, 2.0], [0.0, 1.0, 2.0]])
+    reps, copies = _distinct_receivers(q, np.ones_like(q), None)
+    assert reps.tolist() == [0, 1] and copies.tolist() == [0, 1, 0]
+    assert _distinct_receivers(q[:2], np.ones((2, 3)), None) == (None, None)
