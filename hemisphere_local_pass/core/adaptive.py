@@ -118,7 +118,7 @@ import numpy as np
 from .culling import _merged_faces
 from .local_pass import Cancelled, irradiance
 from .parallel import _resolve_workers, job_pool
-from .raycast import build_bvh
+from .raycast import box_query, build_bvh
 from .scene import Scene
 
 __all__ = ["AdaptiveStats", "DEFAULT_COARSE", "FINAL_SHARE", "LIGHT_RATIO", "MAX_ASPECT", "NORMAL_JUMP", "SAMPLE_SHARE",
@@ -300,24 +300,6 @@ def _merged_face_extents(scene: Scene):
     return face, member, area, np.maximum(diam, 1e-300)
 
 
-def _box_query(bvh, lo, hi):
-    """Pairs ``(query, polygon)`` whose boxes overlap: ``lo, hi (q, 3)`` query boxes; convex-polygon ids."""
-    q = np.arange(len(lo))
-    node = np.zeros(len(lo), dtype=np.int64)
-    for level, box in enumerate(bvh.levels):
-        b = np.take(box, node, axis=1)  # (6, pairs)
-        keep = np.all((b[:3] <= hi[q].T) & (b[3:] >= lo[q].T), axis=0)  # NaN (empty node) is False
-        q, node = q[keep], node[keep]
-        if level < len(bvh.levels) - 1:
-            q = np.repeat(q, 2)
-            node = (2 * node[:, None] + np.arange(2)).reshape(-1)
-    polys = np.take(bvh.leaf_polys, node, axis=0)  # (pairs, leaf)
-    q = np.repeat(q, polys.shape[1])
-    polys = polys.reshape(-1)
-    ok = polys >= 0
-    return q[ok], polys[ok]
-
-
 def _hull_planes(quads, rect, normals, light_normal, eps):
     """Supporting planes of the hulls of cell quads ``quads (c, 4, 3)`` and a light ``rect (4, 3)``.
 
@@ -373,7 +355,7 @@ def _shadow_cells(scene, bvh, lights, quads, normals, eps):
         hx, hy, hz = (np.ascontiguousarray(hn[..., i]) for i in range(3))
         real_face = np.abs(hn).sum(axis=2) > 0
         diam = np.linalg.norm(quads[cand][:, [0, 1]] - quads[cand][:, [2, 3]], axis=2).max(axis=1)  # (c,)
-        qi, poly = _box_query(bvh, hull.min(axis=1), hull.max(axis=1))
+        qi, poly = box_query(bvh, hull.min(axis=1), hull.max(axis=1))
         own = np.isin(poly, g["polygons"])
         qi, poly = qi[~own], poly[~own]
         hit = np.zeros(len(cand), dtype=bool)
@@ -446,6 +428,8 @@ def adaptive_irradiance(
     neighbour_check: bool = True,
     sample_share: float = 0.0,
     final_share: float | None = None,
+    limit_directions=None,
+    breaks=None,
 ):
     """Irradiance image with exact evaluations only where interpolation would err by more than ``tolerance``.
 
@@ -477,11 +461,26 @@ def adaptive_irradiance(
         final_share: in [0, 1): the share of ``tolerance`` for the *final* samples, those no interpolation
             will ever use (step 6 of the module docstring): their bound is their pixel's whole error.
             None (the default): ``sample_share``, i.e. one tolerance for every sample.
+        limit_directions: (h, w, 3) float or None: each sample is the limit from this side (as in
+            :func:`irradiance`; the vertex receivers of :mod:`.adaptive_vertices` on a surface's edge).
+        breaks: ``(brk_x (h, w-1), brk_y (h-1, w))`` bool or None: further discontinuities between adjacent
+            pixels, forced like surface breaks (step 2): other geometry meeting the receivers' plane
+            between two vertex receivers (:mod:`.adaptive_vertices`).
 
     Returns:
         ``(H, stats)``: H (h, w, 3) float64 irradiance (0 where missed), stats :class:`AdaptiveStats`.
     """
     p, n, g = _validate(points, normals, polygons)
+    lim = None if limit_directions is None else np.asarray(limit_directions, dtype=np.float64)
+    if lim is not None and lim.shape != p.shape:
+        raise ValueError(f"limit_directions must have shape {p.shape}, got {lim.shape}")
+    if breaks is not None:
+        bx, by = (np.asarray(b, dtype=bool) for b in breaks)
+        h, w = g.shape
+        if bx.shape != (h, max(w - 1, 0)) or by.shape != (max(h - 1, 0), w):
+            raise ValueError(f"breaks must have shapes {(h, max(w - 1, 0))} and {(max(h - 1, 0), w)}, "
+                             f"got {bx.shape} and {by.shape}")
+        breaks = (bx, by)
     tol = float(tolerance)
     if not (tol >= 0.0) or not np.isfinite(tol):
         raise ValueError(f"tolerance must be a finite number >= 0, got {tolerance!r}")
@@ -509,14 +508,14 @@ def adaptive_irradiance(
 
     try:
         return _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, cancel, int(coarse),
-                              light_ratio, anisotropic, neighbour_check, share, final)
+                              light_ratio, anisotropic, neighbour_check, share, final, lim, breaks)
     finally:
         if kept and kept[0][1]:  # a pool of this pass (a cancel has killed it already: run_chunks does)
             kept[0][0].shutdown(wait=True, cancel_futures=True)
 
 
 def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, cancel, coarse, light_ratio,
-                   anisotropic, neighbour_check, share, final_share):
+                   anisotropic, neighbour_check, share, final_share, lim=None, extra_breaks=None):
     """The body of :func:`adaptive_irradiance` (arguments checked; ``executor_of_pass()``: the executor of
     the core calls, or None)."""
     h, w = g.shape
@@ -551,14 +550,15 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
         before = stats.exact_points
         # progress after every chunk of the call (a round's call can hold most of the image's evaluations)
         chunk_progress = None if progress is None else (lambda done, _total: progress(before + done, n_valid))
+        limits = None if lim is None else lim[yy, xx]
         if sample_tol > 0.0:
             H[yy, xx], far = irradiance(scene, p[yy, xx], n[yy, xx], cancel=cancel, workers=workers,
                                         executor=executor_of_pass(), progress=chunk_progress,
-                                        tolerance=sample_tol, return_stats=True)
+                                        tolerance=sample_tol, return_stats=True, limit_directions=limits)
             bound[yy, xx] = far.error_bound.max(axis=1)
         else:
             H[yy, xx] = irradiance(scene, p[yy, xx], n[yy, xx], cancel=cancel, workers=workers,
-                                   executor=executor_of_pass(), progress=chunk_progress)
+                                   executor=executor_of_pass(), progress=chunk_progress, limit_directions=limits)
         exact[yy, xx] = True
         stats.exact_points += len(yy)
 
@@ -569,7 +569,10 @@ def _adaptive_pass(scene, p, n, g, tol, workers, executor_of_pass, progress, can
 
     # --- surface discontinuities between adjacent pixels, as summed-area tables --------------------
     unit = n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-300)
-    tx, ty = (_summed(b) for b in _surface_breaks(scene, unit, g))
+    brk = _surface_breaks(scene, unit, g)
+    if extra_breaks is not None:
+        brk = (brk[0] | extra_breaks[0], brk[1] | extra_breaks[1])
+    tx, ty = (_summed(b) for b in brk)
 
     lights = [lg for lg in light_groups(scene, ratio=light_ratio) if np.pi * lg["radiance"] > tol]
     stats.lights = len(lights)
