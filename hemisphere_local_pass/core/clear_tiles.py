@@ -12,9 +12,15 @@ A (receiver, tile) pair takes this path only when the answer is certain to be th
 would give: the tile's merged face has a shadow-volume instance that no volume cuts (levels 1 and 1.5
 of :func:`.visibility.coverage` and :func:`.hierarchy.visit_tiles`), no corner of the tile's bounding
 box lies below the horizon by more than the general path's tolerance (so no member needs clipping), P
-is clearly off the tile's plane,
-the receiver is not in a one-sided limit, and the tile's members have no duplicates or coplanar
-overlaps. Everything else goes the general way, so exactness never depends on this path's margins.
+is clearly off the tile's plane, and the tile's members have no duplicates or coplanar overlaps.
+Everything else goes the general way, so exactness never depends on this path's margins.
+
+A receiver in a one-sided limit (``P + εu``, ε → 0+) takes this path too (since 2026-12-08): ``u`` lies in
+the receiver's tangent plane, so the horizon is the same plane; every decision above is made with a
+margin, which a first-order move of P cannot flip; and a tile whose plane P is clearly off has no point
+within that distance of P, so its eq. 4 sum is continuous at P: its value at P is the limit's. Measured on
+150 receivers that keep their limit on the 9,468-polygon box's face corners: H within 2.7e-15 of the
+general path's, ΣF = 1 to 4.4e-16, at half the time (61.7 → 29.3 ms per receiver under load).
 """
 
 from __future__ import annotations
@@ -154,8 +160,6 @@ def clear_pairs(te: TileEdges, occ, cov, sv, table, points, normals, limit) -> C
         uncut_cluster = cov.k_ptr[ks + 1] == cov.k_ptr[ks]
         uncut_tile = tiles.tested & (np.diff(tiles.ptr) == 0)                    # untested: "cut" (unknown)
         ok &= uncut_cluster | uncut_tile
-    if limit is not None:
-        ok &= ~limit.any(axis=1)[tp]
     sel = np.flatnonzero(ok)
     tp, tt = tp[sel], tt[sel]
     ptp = take_rows(points, tp)                                                  # (np.take: bitwise a[idx])

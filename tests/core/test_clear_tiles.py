@@ -108,3 +108,36 @@ def test_edges_passing_close_to_the_receiver(d):
     f_gen, _ = general_path(scene, p, n)
     assert np.abs(f - f_gen).max() <= 1e-15
     assert abs(f.sum() - 1.0) <= 1e-14
+
+
+def test_fast_path_in_a_one_sided_limit():
+    """Receivers that keep a one-sided limit (face corners that another face touches: the feet of the walls and
+    blocks, room corners) take the fast path for the tiles it is certain for, and agree with the general path
+    (every tile per fragment, in the limit) to rounding: ``u`` lies in the tangent plane, the decisions have
+    margins, and a tile P is clearly off is continuous at P."""
+    from hemisphere_local_pass.core.receivers import idle_limits_dropped, prepare_receivers
+
+    rng = np.random.default_rng(11)
+    box = cornell_box(20)
+    scene = box.scene(radiance=rng.uniform(0.0, 2.0, size=(box.n_polygons, 3)))
+    quads = box.vertices[np.array(box.polygons)]                                   # (n, 4, 3)
+    nrm = box.normals()
+    pts = quads.reshape(-1, 3)
+    n4 = np.repeat(nrm, 4, axis=0)
+    lim = np.repeat(quads.mean(axis=1), 4, axis=0) - pts
+    lim -= np.einsum("ij,ij->i", lim, n4)[:, None] * n4
+    lim /= np.linalg.norm(lim, axis=1, keepdims=True)
+    p, n, u = prepare_receivers(pts, n4, lim)
+    kept = np.flatnonzero(idle_limits_dropped(scene, p, n, u).any(axis=1))
+    pick = rng.choice(kept, 120, replace=False)
+    P, N, U = p[pick], n[pick], u[pick]
+    occ = lp._occluders(scene, None)
+    _, _, (pairs, _) = lp._visible(scene, P, N, U, occ, None, use_clear=True)
+    assert len(np.unique(pairs.point)) == len(P)  # every receiver has clear tiles
+    frags, ff, clear = lp._visible(scene, P, N, U, occ, None, use_clear=False)
+    assert clear is None
+    f_gen = np.zeros((len(P), scene.n_input))
+    np.add.at(f_gen, (frags.point, scene.poly_source[frags.poly]), ff)
+    f = form_factors(scene, P, N, limit_directions=U)
+    assert np.abs(f - np.minimum(f_gen, 1.0)).max() <= 1e-14
+    assert np.abs(f.sum(axis=1) - 1.0).max() <= 1e-10
