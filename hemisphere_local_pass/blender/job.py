@@ -7,9 +7,7 @@ Nothing is computed here; the names live in the modules that do the work::
     job_report.py        JobReport (what a job did), JobStep (one per chunk), progress and stages
     pixels_pass.py       pixels mode: camera rays -> receivers -> H -> eq. 5 -> EXR / PNG / image
     adaptive_pixels.py   pixels mode's adaptive pass (tolerance > 0), one JobStep per progress poll
-    core_thread.py       an adaptive pass's core call in a thread while the job's generator yields
     vertices_pass.py     vertices mode: receivers -> H -> eq. 5 -> colour attributes
-    adaptive_vertices.py vertices mode's adaptive pass (tolerance > 0): core.adaptive_vertex_irradiance
     vertex_receivers.py  vertices mode's receivers: points, normals, limit directions, rho and E
     receiver_chunks.py   receivers in fixed chunks (MIN_CHUNK ...), checkpointed, a JobStep per chunk
     chunk_evaluation.py  one chunk through the core: H and sum F; the scene's preparation stage

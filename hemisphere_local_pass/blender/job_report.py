@@ -83,7 +83,7 @@ class JobReport:
 @dataclass
 class JobStep:
     """What :func:`.pipeline.local_pass_steps` yields after every finished chunk (and, while the
-    adaptive pass runs, every ``core_thread.POLL_SECONDS``): ``done`` of ``total`` receivers
+    adaptive pass runs, every ``adaptive_pixels.POLL_SECONDS``): ``done`` of ``total`` receivers
     (points) evaluated so far. Between two steps nothing of Blender's data is touched, so a modal
     operator can return to the event loop there (``blender/modal.py``)."""
 

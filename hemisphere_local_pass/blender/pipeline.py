@@ -127,7 +127,7 @@ def local_pass_steps(
             interpolation uses, with ``FINAL_SHARE``); the EXR's ``error_estimate``
             and ``exact_sample`` layers show the estimate (the samples' bounds) and where it interpolated. The adaptive
             pass neither checkpoints nor computes the ``form_factor_sum`` layer (NaN there); it yields
-            a step every ``core_thread.POLL_SECONDS`` while its core calls run in a thread.
+            a step every ``adaptive_pixels.POLL_SECONDS`` while its core calls run in a thread.
             Vertices mode: 0 is exact; > 0 (relative to the receivers' mean irradiance, estimated from
             exact values at ``vertices_pass.MEAN_POINTS`` of them) runs the core's error-bounded far
             field; the bound used goes into ``<irradiance attribute>_bound`` and ``report.error_estimate``

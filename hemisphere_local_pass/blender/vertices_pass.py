@@ -3,12 +3,10 @@ limit from inside their faces, :mod:`.vertex_receivers`), H there chunk by chunk
 go into the ``hlp_radiance`` / ``hlp_irradiance`` colour attributes (eq. 5).
 
 With a tolerance (relative to the mean irradiance of the receivers, estimated from exact values at
-:data:`MEAN_POINTS` of them spread over the job) the receivers go through the adaptive pass for vertex sets
-(:mod:`.adaptive_vertices`, ``core.adaptive_vertex_irradiance``: interpolation along the lattices of
-subdivided faces, exact samples from the core's error-bounded far field): its error estimate goes into the
-colour attribute ``<irradiance attribute>_bound`` (W m^-2, the same in every channel, 0 where exact), which
-is also rewritten with zeros by an exact run if an earlier one of ours left it. The adaptive pass does not
-checkpoint (as in pixels mode).
+:data:`MEAN_POINTS` of them spread over the job) every chunk runs the core's error-bounded far field
+(:mod:`..core.far_field`): what it bounds instead of computing goes into the colour attribute
+``<irradiance attribute>_bound`` (W m^-2 per channel, 0 where exact), which is also rewritten with
+zeros by an exact run if an earlier one of ours left it.
 
 Written for Python 3.10+ (Debian's Blender 3.4): no newer syntax.
 """
@@ -19,7 +17,6 @@ import os
 
 import numpy as np
 
-from .adaptive_vertices import adaptive_vertices, input_polygons
 from .checkpoint import digest
 from .receiver_chunks import compute_chunks
 from .vertex_receivers import receiver_materials, receivers, selected_meshes
@@ -94,8 +91,7 @@ def run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, em
         todo = used if mask is None else used & mask
         if mask is not None and not todo.any():
             continue  # Edit Mode, nothing selected on this object: nothing is written on it
-        g = input_polygons(exported, ob, cpoly, domain, arrays.loop_vertices, len(pts))
-        jobs.append((ob, domain, pts, nrm, lim, rho_r, emit_r, mask, todo, g))
+        jobs.append((ob, domain, pts, nrm, lim, rho_r, emit_r, mask, todo))
     if not any(j[8].any() for j in jobs):
         if edit_objects:
             names = ", ".join(f"'{ob.name}'" for ob in edit_objects)
@@ -106,7 +102,6 @@ def run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, em
     all_pts = np.concatenate([j[2][j[8]] for j in jobs])
     all_nrm = np.concatenate([j[3][j[8]] for j in jobs])
     all_lim = np.concatenate([j[4][j[8]] for j in jobs])
-    all_g = np.concatenate([j[9][j[8]] for j in jobs])
     core_scene = exported.scene
     absolute = 0.0
     if tolerance > 0:
@@ -115,25 +110,18 @@ def run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, em
                         f"{tolerance:g} of it)")
         absolute = tolerance * mean_irradiance(exported, all_pts, all_nrm, all_lim, cancel)
         report.tolerance = absolute
-    if absolute > 0:
-        stage(progress, f"adaptive pass over {len(all_pts)} receivers (tolerance {absolute:.4g} W/m2)")
-        h_all, err = yield from adaptive_vertices(exported, all_pts, all_nrm, all_lim, all_g, absolute, progress,
-                                                  cancel, report)
-        ck = None
-        bound_all = np.repeat(err[:, None], 3, axis=1)
-        report.max_form_factor_error = float("nan")  # not computed: the adaptive pass evaluates H only
-    else:
-        # ``absolute`` (0.0 here) stays in the fingerprint: checkpoints of earlier versions still resume
-        fingerprint = digest("vertices", core_scene.poly_vertices, core_scene.poly_radiance,
-                              core_scene.corner_radiance if core_scene.linear else 0, all_pts, all_nrm, all_lim,
-                              absolute)
-        ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
-        ck = yield from compute_chunks(exported, all_pts, all_nrm, all_lim, checkpoint_path=ck_path,
-                                       fingerprint=fingerprint, resume=resume, progress=progress, cancel=cancel,
-                                       report=report)
-        h_all, bound_all = ck.h, np.zeros((len(all_pts), 3))
-        report.max_form_factor_error = float(np.abs(ck.fsum - 1.0).max()) if len(all_pts) else 0.0
+    fingerprint = digest("vertices", core_scene.poly_vertices, core_scene.poly_radiance,
+                          core_scene.corner_radiance if core_scene.linear else 0, all_pts, all_nrm, all_lim, absolute)
+    ck_path = None if output is None else os.path.abspath(output) + ".checkpoint.npz"
+    ck = yield from compute_chunks(exported, all_pts, all_nrm, all_lim, checkpoint_path=ck_path,
+                                   fingerprint=fingerprint, resume=resume, progress=progress, cancel=cancel,
+                                   report=report, tolerance=absolute)
     report.points = len(all_pts)
+    if absolute > 0:
+        report.max_form_factor_error = float("nan")  # not computed with a tolerance (see evaluate_chunk)
+        report.error_estimate = float(ck.bound.max(initial=0.0))
+    else:
+        report.max_form_factor_error = float(np.abs(ck.fsum - 1.0).max()) if len(all_pts) else 0.0
     results = {}
     mode_restore = None
     if edit_objects and bpy.context.mode.startswith("EDIT"):
@@ -141,12 +129,12 @@ def run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, em
         bpy.ops.object.mode_set(mode="OBJECT")  # attribute edits must not be overwritten by the edit mesh
     try:
         s = 0
-        for ob, domain, pts, _nrm, _lim, rho_r, emit_r, _mask, todo, _g in jobs:
+        for ob, domain, pts, _nrm, _lim, rho_r, emit_r, _mask, todo in jobs:
             n = int(todo.sum())
             h = np.zeros((len(pts), 3))
-            h[todo] = h_all[s:s + n]
+            h[todo] = ck.h[s:s + n]
             bound = np.zeros((len(pts), 3))
-            bound[todo] = bound_all[s:s + n]
+            bound[todo] = ck.bound[s:s + n]
             s += n
             radiance = emit_r + rho_r / np.pi * h  # eq. 5
             outputs.write_vertex_colours(ob.data, radiance_attribute, domain, radiance, todo)
@@ -162,7 +150,6 @@ def run_vertices(scene, view_layer, exported, report, *, attribute, rho_attr, em
     finally:
         if mode_restore:
             bpy.ops.object.mode_set(mode=mode_restore)
-    if ck is not None:
-        ck.remove()
+    ck.remove()
     report.result = results
     return results

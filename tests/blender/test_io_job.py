@@ -433,11 +433,11 @@ def test_cli_vertices_saves_a_blend(hlp, tmp_path, capsys):
     assert attrs["hlp_radiance"].domain == "CORNER" and "hlp_irradiance" in attrs
     assert "hlp_radiance" not in bpy.data.objects["Ceiling"].data.attributes
     assert "hlp_irradiance_bound" not in attrs  # exact: no bound attribute
-    # with a tolerance: the adaptive pass, its error estimate saved and the summary saying so
+    # with a tolerance: the far field, its bound saved and the summary saying so
     capsys.readouterr()
     out2 = str(tmp_path / "baked_far.blend")
     assert job.cli_main(["render", "--mode", "vertices", "--objects", "Floor", "--tolerance", "1e-3", "-o", out2]) == 0
-    assert "adaptive: " in capsys.readouterr().out
+    assert "far field: error bound <= " in capsys.readouterr().out
     bpy.ops.wm.open_mainfile(filepath=out2)
     assert bpy.data.objects["Floor"].data.attributes["hlp_irradiance_bound"].domain == "CORNER"
 
@@ -484,10 +484,9 @@ def read_colours(mesh, name):
 
 
 def test_vertices_with_a_tolerance_run_the_bounded_far_field(hlp):
-    """Vertices mode with a tolerance on a mesh too coarse to interpolate (5 lattice lines a side, under
-    core.adaptive_vertices.MIN_SIDE): every receiver from the core's far field, its bound written next to H
-    and within the tolerance, the measured error within the bound; an exact rerun zeroes our bound; a
-    user's attribute of that name is refused, not overwritten."""
+    """Vertices mode with a tolerance: the core's far field, its bound written next to H and within the
+    tolerance, the measured error within the bound; an exact rerun zeroes our bound; a user's attribute of
+    that name is refused, not overwritten."""
     from hemisphere_local_pass.scenes.cornell_box import cornell_box
 
     box = cornell_box(4)
@@ -505,8 +504,7 @@ def test_vertices_with_a_tolerance_run_the_bounded_far_field(hlp):
     rep = job.run_local_pass(mode="vertices", tolerance=1e-3)
     h = rep.result["Floor"][2]
     bound = read_colours(floor.data, "hlp_irradiance_bound")
-    assert "Floor:hlp_irradiance_bound" in rep.outputs and "adaptive: " in rep.summary()
-    assert rep.exact_points == rep.points  # no lattice: nothing interpolated
+    assert "Floor:hlp_irradiance_bound" in rep.outputs and "far field: error bound" in rep.summary()
     assert np.isnan(rep.max_form_factor_error)
     assert 0 < rep.error_estimate <= rep.tolerance and rep.tolerance == pytest.approx(1e-3 * h.mean(), rel=0.5)
     assert bound.shape == h.shape
@@ -527,26 +525,3 @@ def test_vertices_with_a_tolerance_run_the_bounded_far_field(hlp):
     with pytest.raises(ValueError, match="object 'Floor' already has a user attribute 'hlp_irradiance_bound'"):
         job.run_local_pass(mode="vertices", tolerance=1e-3)
     assert (read_colours(floor.data, "hlp_irradiance_bound") == 0.25).all()
-
-
-def test_vertices_with_a_tolerance_interpolate_along_a_subdivided_floor(hlp):
-    """Vertices mode with a tolerance on the Cornell box at 16 subdivisions (17 lattice lines a side): the
-    adaptive pass for vertex sets (core.adaptive_vertex_irradiance) interpolates along the floor's lattice, its
-    error estimate goes into the bound attribute, and the measured error against the exact job is within the
-    tolerance."""
-    from hemisphere_local_pass.scenes.cornell_box import cornell_box
-
-    c = cornell_box(16).centroids()
-    values = cornell_box(16).emission + 0.1 + 0.05 * np.sin(3 * c[:, :1]) * np.cos(2 * c[:, 2:3])  # smooth walls
-    scene, box, values = sample_module().build(16, resolution=8, reset=True, radiosity=values)
-    floor = bpy.data.objects["Floor"]
-    for ob in scene.objects:
-        ob.select_set(ob is floor)
-    job = hlp["job"]
-    rep = job.run_local_pass(mode="vertices", tolerance=1e-2)
-    h = rep.result["Floor"][2].copy()
-    assert "adaptive: " in rep.summary() and rep.exact_points < 0.9 * rep.points, rep.summary()
-    bound = read_colours(floor.data, "hlp_irradiance_bound")
-    assert bound.max() > 0 and 0 < rep.error_estimate <= rep.tolerance
-    h0 = job.run_local_pass(mode="vertices").result["Floor"][2]
-    assert np.abs(h - h0).max() <= rep.tolerance

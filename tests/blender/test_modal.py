@@ -85,7 +85,7 @@ def test_adaptive_pass_yields_while_it_runs_and_esc_stops_it(hlp, monkeypatch):
     scene = build_box(16)
     base = hlp["modal"].__name__.rsplit(".", 1)[0]
     cancelled = importlib.import_module(base.rsplit(".", 1)[0] + ".core").Cancelled
-    monkeypatch.setattr(base + ".core_thread.POLL_SECONDS", 0.002)
+    monkeypatch.setattr(base + ".adaptive_pixels.POLL_SECONDS", 0.002)
     kwargs = hlp["operators"].job_arguments(scene, scene.hlp_settings)
     kwargs.update(mode="pixels", output=None, image=False, tolerance=1e-3)
     run = hlp["modal"].LocalPassRun(kwargs)
@@ -104,7 +104,7 @@ def test_adaptive_pass_yields_while_it_runs_and_esc_stops_it(hlp, monkeypatch):
         assert np.array_equal(run.report.result[key], direct.result[key]), key
     assert direct.exact_points == run.report.exact_points
 
-    monkeypatch.setattr(base + ".core_thread.POLL_SECONDS", 0.002)
+    monkeypatch.setattr(base + ".adaptive_pixels.POLL_SECONDS", 0.002)
     kwargs.update(image=True)
     run = hlp["modal"].LocalPassRun(kwargs)
     assert not run.advance(budget=0.0) and _adaptive_threads()  # mid-pass
