@@ -10,7 +10,8 @@ error-bounded far field with the whole tolerance. (The exact row already profits
 idle one-sided limits dropped, repeated receivers evaluated once — ``core.receivers``, ``core.local_pass``.)
 
     OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_vertices.py [--scenes large,huge]
-        [--rel 1e-2,1e-3] [--workers 2] [--sample-share 0.1 --final-share 0.9] [--out docs/bench_adaptive_vertices]
+        [--rel 1e-2,1e-3] [--workers 2] [--sample-share 0.1 --final-share 0.9] [--parts floor,...]
+        [--out docs/bench_adaptive_vertices]
 
 ``huge`` is the 187,588-polygon box (160 subdivisions per wall); the 175-polygon box has 6 lattice lines a
 side, below ``MIN_SIDE``: nothing to interpolate there.
@@ -20,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import sys
 import time
 
 import numpy as np
@@ -35,9 +38,10 @@ from hemisphere_local_pass.scenes import PAPER_SETTINGS, cornell_box
 SETTINGS = dict(PAPER_SETTINGS, huge={"subdivisions": 160}, medium={"subdivisions": 16})
 
 
-def corner_receivers(box, scene):
-    """CORNER-domain receivers of ``box``: ``(points, normals, limits, polygons)``, one per face corner."""
-    loops = [(i, v) for i, poly in enumerate(box.polygons) for v in poly]
+def corner_receivers(box, scene, parts=None):
+    """CORNER-domain receivers of ``box``: ``(points, normals, limits, polygons)``, one per face corner (of the
+    polygons named in ``parts`` only, e.g. ``("floor",)``; None: all)."""
+    loops = [(i, v) for i, poly in enumerate(box.polygons) for v in poly if parts is None or box.names[i] in parts]
     poly = np.array([i for i, _ in loops], dtype=np.int64)
     pts = box.vertices[[v for _, v in loops]]
     nrm = box.normals()[poly]
@@ -55,11 +59,12 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--sample-share", type=float, default=SAMPLE_SHARE, help="as the Blender job (core.adaptive)")
     ap.add_argument("--final-share", type=float, default=FINAL_SHARE)
+    ap.add_argument("--parts", default="", help="receivers on these parts only (e.g. 'floor,back wall'); all if empty")
     ap.add_argument("--out", default="", help="write <out>.md and <out>.json")
     args = ap.parse_args(argv)
     rels = [float(r) for r in args.rel.split(",")]
     cmd = ("OMP_NUM_THREADS=1 .venv/core/bin/python benchmarks/bench_adaptive_vertices.py "
-           + " ".join(a for a in (argv if argv is not None else __import__("sys").argv[1:])))
+           + shlex.join(argv if argv is not None else sys.argv[1:]))
     lines = [f"# The adaptive pass on vertex receivers\n\nMachine: {machine()}\n", f"Command: `{cmd}`\n",
              "| scene | receivers | on lattices | method | time s | core evaluations | max error / tol | "
              "mean error / tol | largest estimate / tol |", "|---|---|---|---|---|---|---|---|---|"]
@@ -68,7 +73,7 @@ def main(argv=None):
         box = cornell_box(**SETTINGS[key])
         lum = solved_radiance(key, box)  # cached; gathered from the small box's solution (benchmarks/_common.py)
         scene = box.scene(radiance=lum)
-        p, n, lim, g = corner_receivers(box, scene)
+        p, n, lim, g = corner_receivers(box, scene, args.parts.split(",") if args.parts else None)
         m = len(p)
         irradiance(scene, p[:8], n[:8], limit_directions=lim[:8], workers=1)  # scene preparation, once
         t = time.perf_counter()
@@ -81,17 +86,17 @@ def main(argv=None):
         keep = 0 if u is None else int(u.any(axis=1).sum())
         log(f"[{key}] {box.n_polygons} polygons, {m} receivers ({distinct} distinct for the core, {keep} with a "
             f"one-sided limit), {len(lats)} lattices holding {on} ({t_lat:.2f} s)")
-        lines.insert(3, f"{key}: {m} receivers, {distinct} distinct for the core (a vertex's corners on one plane are "
+        lines.insert(2, f"{key}: {m} receivers, {distinct} distinct for the core (a vertex's corners on one plane are "
                         f"one receiver once their idle limits are dropped), {keep} keep a one-sided limit.\n")
         t = time.perf_counter()
         exact = irradiance(scene, p, n, limit_directions=lim, workers=args.workers)
         t_exact = time.perf_counter() - t
         log(f"[{key}] exact {t_exact:.1f} s")
         mean = float(exact.mean())
-        row = f"| {key} ({box.n_polygons}) | {m} | {on} ({on / m:.0%}) |"
-        lines.append(f"{row} exact | {t_exact:.1f} | {m} (100 %) | 0 | 0 | 0 |")
+        row = f"| {key} ({box.n_polygons}{', ' + args.parts if args.parts else ''}) | {m} | {on} ({on / m:.0%}) |"
+        lines.append(f"{row} exact | {t_exact:.1f} | {distinct} distinct ({distinct / m:.1%}) | 0 | 0 | 0 |")
         rows.append(dict(scene=key, polygons=box.n_polygons, receivers=m, on_lattices=on, method="exact",
-                         seconds=t_exact, exact_points=m))
+                         seconds=t_exact, exact_points=distinct))
         for rel in rels:
             tol = rel * mean
             # the job's path before the adaptive pass: every receiver from the far field with the whole tolerance
@@ -101,7 +106,7 @@ def main(argv=None):
             dt = time.perf_counter() - t
             e = np.abs(H - exact).max(axis=1)
             log(f"[{key}] far field {rel:g}: {dt:.1f} s, max error {e.max() / tol:.3f} tol")
-            lines.append(f"{row} far field {rel:g} | {dt:.1f} ({t_exact / dt:.2f}× faster) | {m} (100 %) | "
+            lines.append(f"{row} far field {rel:g} | {dt:.1f} ({t_exact / dt:.2f}× faster) | {distinct} distinct | "
                          f"{e.max() / tol:.3f} | {e.mean() / tol:.4f} | {far.error_bound.max() / tol:.3f} |")
             rows.append(dict(scene=key, polygons=box.n_polygons, receivers=m, on_lattices=on,
                              method=f"far field {rel:g}",
