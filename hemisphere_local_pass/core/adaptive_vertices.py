@@ -128,7 +128,7 @@ def _clusters(x, eps):
     xs = x[order]
     new = np.r_[True, np.diff(xs) > eps]
     ident = np.cumsum(new) - 1
-    values = np.array([xs[ident == i].mean() for i in range(int(ident[-1]) + 1)]) if len(xs) else np.zeros(0)
+    values = np.bincount(ident, weights=xs) / np.bincount(ident) if len(xs) else np.zeros(0)
     index = np.empty(len(x), dtype=np.int64)
     index[order] = ident
     return values, index
